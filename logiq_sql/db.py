@@ -1,0 +1,212 @@
+"""The DuckDB file: canonical input tables, output tables and views, with comments on every column."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import duckdb
+import polars as pl
+
+from logiq_sql import schema
+from logiq_sql.schema import Column, Table, _c
+
+S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
+
+MATCHES = Table(
+    "matches",
+    "One row per match: a scenario, a drive, the ego (SUT) and the actor bound to the scenario's second role.",
+    (
+        _c("match_id", S, "md5 of scenario, drive, ego, actor and start frame: stable across reruns.", False),
+        _c("scenario", S, "Scenario name (file in scenarios/).", False),
+        _c("scenario_version", I, "The scenario file's version.", False),
+        _c("params_hash", S, "Digest of the bound parameter values (see match_runs.params_json).", False),
+        _c("drive_id", S, "Drive.", False),
+        _c("ego_id", S, "actor_id of the ego (SUT).", False),
+        _c("actor_id", S, "actor_id of the other actor (vehicle_actor, cyclist).", False),
+        _c("start_frame", I, "First frame of the match.", False),
+        _c("end_frame", I, "Last frame of the match (inclusive).", False),
+        _c("start_s", F, "t_s of the first frame.", False),
+        _c("end_s", F, "t_s of the last frame.", False),
+        _c("duration_s", F, "end_s - start_s.", False),
+    ),
+)
+
+MATCH_PHASES = Table(
+    "match_phases",
+    "The interval of every phase of every match.",
+    (
+        _c("match_id", S, "Match.", False),
+        _c("scenario", S, "Scenario.", False),
+        _c("phase_index", I, "1 for the first phase.", False),
+        _c("phase", S, "Phase name from the spec.", False),
+        _c("start_frame", I, "First frame of the phase.", False),
+        _c("end_frame", I, "Last frame of the phase.", False),
+        _c("start_s", F, "Start, seconds.", False),
+        _c("end_s", F, "End, seconds.", False),
+    ),
+)
+
+COVERAGE_SAMPLES = Table(
+    "coverage_samples",
+    "One row per (match, coverage item): the sampled value in the item's unit.",
+    (
+        _c("scenario", S, "Scenario.", False),
+        _c("match_id", S, "Match.", False),
+        _c("item", S, "Coverage item name from the spec.", False),
+        _c("unit", S, "Unit of value_num, or the enum type.", False),
+        _c("value_num", F, "Numeric sample; NULL for enum items or undefined values."),
+        _c("value_text", S, "Enum sample; NULL for numeric items."),
+    ),
+)
+
+COVERAGE_BUCKETS = Table(
+    "coverage_buckets",
+    "The buckets of every coverage item: half-open [lo, hi) in the item's unit, or one enum value.",
+    (
+        _c("scenario", S, "Scenario.", False),
+        _c("item", S, "Coverage item.", False),
+        _c("bucket_index", I, "0-based bucket number.", False),
+        _c("bucket", S, "Label, e.g. '[10, 20)' or the enum value.", False),
+        _c("lo", F, "Lower edge (inclusive), NULL for enum buckets."),
+        _c("hi", F, "Upper edge (exclusive), NULL for enum buckets."),
+        _c("value_text", S, "Enum value, NULL for numeric buckets."),
+    ),
+)
+
+COVERAGE = Table(
+    "coverage",
+    "Coverage histograms over every match in the file: one row per bucket (empty ones too), plus 'out_of_range' "
+    "and 'missing' rows where samples fell outside every bucket or were undefined.",
+    (
+        _c("scenario", S, "Scenario.", False),
+        _c("item", S, "Coverage item.", False),
+        _c("bucket_index", I, "Bucket number; NULL for out_of_range and missing."),
+        _c("bucket", S, "Bucket label, 'out_of_range' or 'missing'.", False),
+        _c("lo", F, "Lower edge (inclusive)."),
+        _c("hi", F, "Upper edge (exclusive)."),
+        _c("hits", I, "Matches whose sample fell in the bucket.", False),
+    ),
+)
+
+MATCH_RUNS = Table(
+    "match_runs",
+    "One row per (run, scenario): the parameter values used, so every match can be rerun.",
+    (
+        _c("run_id", S, "Run id (time-ordered).", False),
+        _c("started_at", S, "UTC start time, ISO 8601.", False),
+        _c("scenario", S, "Scenario.", False),
+        _c("scenario_version", I, "Scenario file version.", False),
+        _c("params_hash", S, "Digest of params_json.", False),
+        _c("params_json", S, "Every SQL parameter and its bound value, canonical units.", False),
+        _c("overrides", S, "The --set values as written.", False),
+        _c("ego_mode", S, "auto, recorded, all, every:N or an actor id.", False),
+        _c("drives", I, "Drives in the run.", False),
+        _c("matches", I, "Matches found.", False),
+    ),
+)
+
+DRIVE_SCENARIOS = Table(
+    "drive_scenarios",
+    "One row per (drive, scenario) of the latest run of that scenario over that drive.",
+    (
+        _c("drive_id", S, "Drive.", False),
+        _c("scenario", S, "Scenario.", False),
+        _c("params_hash", S, "Parameters of that run.", False),
+        _c("egos", I, "SUTs considered in the drive.", False),
+        _c("matches", I, "Matches found.", False),
+        _c("status", S, "matched, no_match, no_ego (no actor could be the SUT) or rejected.", False),
+    ),
+)
+
+OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
+TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES, *OUTPUT_TABLES)
+
+_DUCK_TYPES = {pl.String(): "VARCHAR", pl.Float64(): "DOUBLE", pl.Int64(): "BIGINT", pl.Boolean(): "BOOLEAN"}
+
+DRIVES_VIEW = """
+create or replace view drives as
+select
+    d.drive_id,
+    d.source_format,
+    d.source_path,
+    d.map_id,
+    d.dt_s,
+    d.ego_actor_id,
+    d.rows_read,
+    d.rows_rejected,
+    d.reject_reason,
+    case
+        when d.status = 'rejected' then 'rejected'
+        when count(s.scenario) = 0 then 'not_matched'
+        when sum(s.matches) > 0 then 'matched'
+        when bool_and(s.status = 'no_ego') then 'no_ego'
+        else 'no_match'
+    end as status,
+    cast(coalesce(sum(s.matches), 0) as bigint) as matches,
+    string_agg(s.scenario || '=' || cast(s.matches as varchar), ', ' order by s.scenario) as matches_per_scenario
+from drive_inputs as d
+left join drive_scenarios as s
+    on d.drive_id = s.drive_id
+group by
+    d.drive_id, d.source_format, d.source_path, d.map_id, d.dt_s, d.ego_actor_id, d.rows_read,
+    d.rows_rejected, d.reject_reason, d.status
+"""
+DRIVES_DOC = {
+    "status": "rejected, matched (any scenario matched), no_match, no_ego, or not_matched (no run yet).",
+    "matches": "Matches over every scenario run on the drive.",
+    "matches_per_scenario": "scenario=count, for every scenario run on the drive.",
+}
+
+
+def _quote(text: str) -> str:
+    return "'" + text.replace("'", "''") + "'"
+
+
+def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Column, ...] = ()) -> None:
+    columns = (*table.columns, *extra)
+    cols = ",\n    ".join(
+        f"{c.name} {_DUCK_TYPES[c.dtype]}{'' if c.nullable else ' NOT NULL'}" for c in columns
+    )
+    con.execute(f"create table if not exists {table.name} (\n    {cols}\n)")
+    con.execute(f"comment on table {table.name} is {_quote(table.doc)}")
+    for c in columns:
+        con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")
+
+
+def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnection:
+    """Open (and on first use create) a logiq_sql DuckDB file with every table and view."""
+    path = Path(path)
+    if read_only:
+        return duckdb.connect(str(path), read_only=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    con = duckdb.connect(str(path))
+    for table in TABLES:
+        create_table(con, table)
+    con.execute(DRIVES_VIEW)
+    con.execute("comment on view drives is " + _quote(
+        "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
+    for col, doc in DRIVES_DOC.items():
+        con.execute(f"comment on column drives.{col} is {_quote(doc)}")
+    return con
+
+
+def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> None:
+    """Append a Polars frame to a table by column name."""
+    if frame.is_empty():
+        return
+    con.register("_frame_to_insert", frame)
+    cols = ", ".join(frame.columns)
+    con.execute(f"insert into {table} ({cols}) select {cols} from _frame_to_insert")
+    con.unregister("_frame_to_insert")
+
+
+def docs_markdown() -> str:
+    """The tables as a markdown page (docs/tables.md is generated from this)."""
+    out = ["# Tables in the logiq_sql DuckDB file", "",
+           "Generated from `logiq_sql/schema.py` and `logiq_sql/db.py` (`make docs`). Every column also carries "
+           "this text as a DuckDB comment: `select * from duckdb_columns() where comment is not null`.", ""]
+    for table in (*TABLES,):
+        out += [f"## `{table.name}`", "", table.doc, "", "| column | type | meaning |", "|---|---|---|"]
+        out += [f"| `{c.name}` | {_DUCK_TYPES[c.dtype].lower()} | {c.doc} |" for c in table.columns]
+        out.append("")
+    return "\n".join(out)

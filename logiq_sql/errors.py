@@ -1,0 +1,26 @@
+"""Errors that name the file, the key or column, and the fix."""
+
+from __future__ import annotations
+
+import difflib
+
+
+class LogiqError(ValueError):
+    """Base of every error logiq_sql raises on bad input."""
+
+
+class ScenarioError(LogiqError):
+    """A scenario file or a --set override is wrong."""
+
+
+class UnitError(LogiqError):
+    """A quantity has no unit, an unknown unit, or the wrong dimension."""
+
+
+class InputError(LogiqError):
+    """A data file cannot be trusted (missing columns, corrupt, unsafe)."""
+
+
+def did_you_mean(name: str, choices: list[str] | tuple[str, ...]) -> str:
+    close = difflib.get_close_matches(name, list(choices), n=1)
+    return f" Did you mean '{close[0]}'?" if close else ""

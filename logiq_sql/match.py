@@ -1,0 +1,350 @@
+"""Match scenarios against the drives in a DuckDB file: relations, phases, matches, KPIs, coverage.
+
+Every step is a query file in ``queries/`` run over the whole table set, with bound parameters:
+
+    egos -> actor_lanes -> ego_lanes -> relations          (shared by every scenario of the run)
+    phase_1..n -> scenario_match -> scenario_matches       (per scenario)
+    kpi queries -> kpis, coverage_samples -> coverage      (per scenario, then over the whole file)
+
+A run replaces the outputs of its scenarios on its drives in one transaction, so rerunning the same drives
+with the same parameters changes nothing, and an interrupted run leaves the previous results intact.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import duckdb
+import polars as pl
+
+from logiq_sql import db, units
+from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, DRIVE_SCENARIOS, MATCH_PHASES, MATCHES
+from logiq_sql.errors import ScenarioError, did_you_mean
+from logiq_sql.scenario import CoverageItem, Scenario, list_scenarios, load_scenario
+from logiq_sql.sql import materialise, render_steps
+
+DEFAULT_RELATION_RANGE = "150m"
+DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
+RELATION_STEPS = (
+    ("actor_lanes", "relations/actor_lanes.sql"),
+    ("ego_lanes", "relations/ego_lanes.sql"),
+    ("relations", "relations/relations.sql"),
+)
+PERSISTED = ("relations", "ego_lanes")  # kept in the file for analysts, replaced per drive
+
+
+@dataclass
+class MatchResult:
+    """What one run produced, as Polars frames (the file holds the same, plus earlier runs)."""
+
+    matches: pl.DataFrame
+    match_phases: pl.DataFrame
+    kpis: pl.DataFrame
+    coverage: pl.DataFrame
+    drives: pl.DataFrame
+
+    def summary(self) -> str:
+        lines = []
+        counts = self.drives["status"].value_counts(sort=True) if not self.drives.is_empty() else None
+        lines.append(f"drives: {self.drives.height}" + (
+            " (" + ", ".join(f"{r['status']} {r['count']}" for r in counts.iter_rows(named=True)) + ")"
+            if counts is not None else ""))
+        if self.matches.is_empty():
+            lines.append("matches: none")
+        else:
+            per = self.matches.group_by("scenario").agg(
+                pl.len().alias("matches"), pl.col("drive_id").n_unique().alias("drives"),
+                pl.col("duration_s").mean().alias("mean_s"))
+            for r in per.sort("scenario").iter_rows(named=True):
+                lines.append(f"  {r['scenario']}: {r['matches']} matches in {r['drives']} drive(s), "
+                             f"mean duration {r['mean_s']:.1f} s")
+        return "\n".join(lines)
+
+
+def parse_ego(ego: str) -> dict[str, object]:
+    """``auto | recorded | all | every:N | <actor id>`` -> the egos.sql parameters."""
+    if ego in ("auto", "recorded", "all"):
+        return {"ego_mode": ego, "ego_every": 1, "ego_actor_id": ""}
+    if ego.startswith("every:"):
+        try:
+            n = int(ego.split(":", 1)[1])
+            if n < 1:
+                raise ValueError
+        except ValueError:
+            raise ScenarioError(f"--ego {ego}: N in every:N must be a whole number >= 1.") from None
+        return {"ego_mode": "every", "ego_every": n, "ego_actor_id": ""}
+    return {"ego_mode": "id", "ego_every": 1, "ego_actor_id": ego}
+
+
+def resolve_scenarios(names: list[str] | None, overrides: dict[str, str]) -> list[Scenario]:
+    """Load the scenarios and apply each override to every scenario that declares that parameter."""
+    scenarios = [load_scenario(n) for n in names] if names else list_scenarios()
+    abstract = [s.name for s in scenarios if s.abstract]
+    if abstract:
+        raise ScenarioError(f"scenario '{abstract[0]}' is a base scenario and cannot be matched on its own.")
+    known = {p for s in scenarios for p in s.params}
+    for name, text in overrides.items():
+        if name not in known:
+            raise ScenarioError(
+                f"--set {name}={text}: no scenario of this run has a parameter '{name}'."
+                f"{did_you_mean(name, sorted(known))}\n\nHint: `logiq-sql scenarios` lists every parameter."
+            )
+    return [s.with_overrides({k: v for k, v in overrides.items() if k in s.params}) for s in scenarios]
+
+
+def _lane_tolerance(s: Scenario) -> float:
+    p = s.params.get("lane_calculation_tolerance_length")
+    return float(p.value) if p is not None and p.value is not None else DEFAULT_LANE_TOLERANCE_M
+
+
+def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> dict[str, object]:
+    """Every value a step of scenario ``s`` may bind."""
+    return {
+        **s.bindings(), **ego, "relation_range_m": relation_range_m,
+        "lane_calculation_tolerance_length_m": _lane_tolerance(s),
+        "scenario": s.name, "scenario_version": s.version, "params_hash": s.params_hash(),
+    }
+
+
+def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
+    steps = [("egos", "relations/egos.sql"), *RELATION_STEPS]
+    steps += [(f"phase_{i}", p.query) for i, p in enumerate(s.phases, 1)]
+    steps.append(("scenario_match", s.match_query or ""))
+    return steps
+
+
+def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "auto",
+           relation_range: str = DEFAULT_RELATION_RANGE) -> str:
+    """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set."""
+    (s,) = resolve_scenarios([scenario], overrides or {})
+    values = run_values(s, parse_ego(ego), units.parse(relation_range, "length", "--relation-range"))
+    header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
+              f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
+              "create or replace temp table run_drives as select drive_id from drive_inputs where status = 'ingested';\n")
+    return header + render_steps(scenario_steps(s), values)
+
+
+def _coverage_buckets(s: Scenario) -> pl.DataFrame:
+    rows = []
+    for item in s.coverage:
+        if item.values:
+            rows += [dict(scenario=s.name, item=item.name, bucket_index=i, bucket=v, lo=None, hi=None, value_text=v)
+                     for i, v in enumerate(item.values)]
+            continue
+        n = round((item.hi - item.lo) / item.every)
+        for i in range(n):
+            lo = item.lo + i * item.every
+            hi = min(item.lo + (i + 1) * item.every, item.hi)
+            rows.append(dict(scenario=s.name, item=item.name, bucket_index=i, bucket=f"[{lo:g}, {hi:g})",
+                             lo=lo, hi=hi, value_text=None))
+    return pl.DataFrame(rows, schema=COVERAGE_BUCKETS.polars_schema)
+
+
+def _coverage_samples(s: Scenario, metrics: pl.DataFrame) -> pl.DataFrame:
+    frames = []
+    for item in s.coverage:
+        col = pl.col(item.column)
+        frames.append(metrics.select(
+            pl.lit(s.name).alias("scenario"), pl.col("match_id"), pl.lit(item.name).alias("item"),
+            pl.lit(item.unit).alias("unit"),
+            (pl.lit(None, pl.Float64) if item.values else col.cast(pl.Float64)).alias("value_num"),
+            (col.cast(pl.String) if item.values else pl.lit(None, pl.String)).alias("value_text"),
+        ))
+    return pl.concat(frames) if frames else pl.DataFrame(schema=COVERAGE_SAMPLES.polars_schema)
+
+
+def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]) -> None:
+    con.execute("create table if not exists kpis (match_id varchar not null, scenario varchar not null)")
+    con.execute("comment on table kpis is 'One row per match: every KPI of its scenario, in the spec''s units "
+                "(column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
+    have = {r[0] for r in con.execute(
+        "select column_name from duckdb_columns() where table_name = 'kpis'").fetchall()}
+    for s in scenarios:
+        for k in s.kpis:
+            if k.column not in have:
+                kind = "varchar" if k.unit in ("string", "evaluation_object_kind") else "double"
+                con.execute(f"alter table kpis add column {k.column} {kind}")
+                con.execute(f"comment on column kpis.{k.column} is "
+                            + db._quote(f"{k.name} ({k.unit}): {k.description}"))
+                have.add(k.column)
+
+
+def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
+          overrides: dict[str, str] | None = None, drives: list[str] | None = None,
+          relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
+          progress: Callable[[str], None] | None = None) -> MatchResult:
+    """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
+
+    Args:
+        db_path: a DuckDB file written by ``ingest``.
+        scenarios: scenario names (default: every concrete scenario in ``scenarios/``).
+        ego: ``auto`` (recorded ego, else every vehicle), ``recorded``, ``all``, ``every:N`` or an actor id.
+        overrides: parameter name -> value with unit, e.g. ``{"max_distance_from_cyclist": "4m"}``.
+        drives: restrict the run to these drive ids (default: every ingested drive).
+        relation_range: keep ego-actor pairs whose centres are at most this far apart.
+        out: also write every output table as Parquet into this folder.
+    """
+    say = progress or (lambda _msg: None)
+    chosen = resolve_scenarios(scenarios, overrides or {})
+    ego_values = parse_ego(ego)
+    range_m = units.parse(relation_range, "length", "--relation-range")
+    con = db.connect(db_path)
+    try:
+        run_drives = _run_drives(con, drives)
+        con.register("run_drives", run_drives)
+        _ensure_kpi_columns(con, chosen)
+        run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
+        results = []
+        by_tolerance: dict[float, list[Scenario]] = {}
+        for s in chosen:
+            by_tolerance.setdefault(_lane_tolerance(s), []).append(s)
+        for tolerance, group in sorted(by_tolerance.items()):
+            shared = run_values(group[0], ego_values, range_m)
+            materialise(con, "egos", "relations/egos.sql", shared)
+            for table, rel in RELATION_STEPS:
+                materialise(con, table, rel, shared)
+            say(f"relations: {con.execute('select count(*) from relations').fetchone()[0]:,} ego-actor rows "
+                f"(lane tolerance {tolerance:g} m)")
+            for s in group:
+                results.append(_run_scenario(con, s, run_values(s, ego_values, range_m)))
+                say(f"{s.name}: {results[-1][0].height} matches")
+        _store(con, run_id, ego, run_drives, results)
+        result = _result(con, run_drives, [s.name for s in chosen])
+        if out is not None:
+            export(con, out)
+        return result
+    finally:
+        con.close()
+
+
+def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.DataFrame:
+    known = con.sql("select drive_id from drive_inputs order by drive_id").pl()
+    if drives:
+        missing = sorted(set(drives) - set(known["drive_id"]))
+        if missing:
+            raise ScenarioError(f"--drive {missing[0]}: no such drive in the file."
+                                f"{did_you_mean(missing[0], known['drive_id'].to_list())}")
+        known = known.filter(pl.col("drive_id").is_in(drives))
+    return known
+
+
+def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str, object]):
+    for i, phase in enumerate(s.phases, 1):
+        materialise(con, f"phase_{i}", phase.query, values)
+    materialise(con, "scenario_match", s.match_query or "", values)
+    materialise(con, "scenario_matches", "match/identify.sql", values)
+    matches = con.sql("select * from scenario_matches").pl()
+    metrics = matches.select("match_id")
+    for rel in s.kpi_queries:
+        materialise(con, "_kpi", rel, values)
+        metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
+    kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
+                          *[pl.col(k.column) for k in s.kpis])
+    if len(s.phases) == 1:
+        phases = matches.select("match_id", "scenario", pl.lit(1, pl.Int64).alias("phase_index"),
+                                pl.lit(s.phases[0].name).alias("phase"),
+                                "start_frame", "end_frame", "start_s", "end_s")
+    else:
+        raise ScenarioError(f"{s.path}: scenarios with {len(s.phases)} phases are not supported yet.")
+    egos = con.sql("select drive_id, count(*) as egos from egos group by drive_id").pl()
+    return matches, phases, kpis, _coverage_samples(s, metrics), _coverage_buckets(s), s, egos
+
+
+def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl.DataFrame, results) -> None:
+    started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    con.execute("begin transaction")
+    try:
+        for table in PERSISTED:  # the temp table of the run shadows the stored one of the same name
+            con.execute(f"create table if not exists main.{table} as select * from temp.{table} limit 0")
+            con.execute(f"delete from main.{table} where drive_id in (select drive_id from run_drives)")
+            con.execute(f"insert into main.{table} select * from temp.{table}")
+        for matches, phases, kpis, samples, buckets, s, egos in results:
+            for table in ("matches", "match_phases", "kpis", "coverage_samples"):
+                con.execute(
+                    f"delete from {table} where scenario = $s and match_id in "
+                    "(select match_id from matches where scenario = $s and drive_id in "
+                    "(select drive_id from run_drives))" if table != "matches" else
+                    "delete from matches where scenario = $s and drive_id in (select drive_id from run_drives)",
+                    {"s": s.name})
+            con.execute("delete from coverage_buckets where scenario = $s", {"s": s.name})
+            con.execute("delete from drive_scenarios where scenario = $s and drive_id in "
+                        "(select drive_id from run_drives)", {"s": s.name})
+            db.insert(con, "matches", matches.select(MATCHES.column_names))
+            db.insert(con, "match_phases", phases.select(MATCH_PHASES.column_names))
+            db.insert(con, "kpis", kpis)
+            db.insert(con, "coverage_samples", samples)
+            db.insert(con, "coverage_buckets", buckets)
+            db.insert(con, "drive_scenarios", _drive_status(con, run_drives, matches, egos, s))
+            db.insert(con, "match_runs", pl.DataFrame([{
+                "run_id": run_id, "started_at": started, "scenario": s.name, "scenario_version": s.version,
+                "params_hash": s.params_hash(), "params_json": json.dumps(s.bindings(), sort_keys=True),
+                "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
+                "drives": run_drives.height, "matches": matches.height,
+            }], schema=db.MATCH_RUNS.polars_schema))
+        con.execute("delete from coverage")
+        con.execute("insert into coverage select * from (" + _histogram_sql() + ")")
+        con.execute("commit")
+    except BaseException:
+        con.execute("rollback")
+        raise
+
+
+def _histogram_sql() -> str:
+    from logiq_sql.sql import query_text
+
+    return query_text("coverage/histogram.sql")
+
+
+def _drive_status(con, run_drives: pl.DataFrame, matches: pl.DataFrame, egos: pl.DataFrame, s: Scenario):
+    status = con.sql("select drive_id, status from drive_inputs").pl()
+    per = matches.group_by("drive_id").agg(pl.len().alias("matches"))
+    frame = (
+        run_drives.join(status, on="drive_id", how="left")
+        .join(egos, on="drive_id", how="left")
+        .join(per, on="drive_id", how="left")
+        .with_columns(pl.col("egos").fill_null(0), pl.col("matches").fill_null(0).cast(pl.Int64))
+    )
+    return frame.select(
+        "drive_id", pl.lit(s.name).alias("scenario"), pl.lit(s.params_hash()).alias("params_hash"),
+        pl.col("egos").cast(pl.Int64), "matches",
+        pl.when(pl.col("status") == "rejected").then(pl.lit("rejected"))
+        .when(pl.col("egos") == 0).then(pl.lit("no_ego"))
+        .when(pl.col("matches") > 0).then(pl.lit("matched"))
+        .otherwise(pl.lit("no_match")).alias("status"),
+    )
+
+
+def _result(con: duckdb.DuckDBPyConnection, run_drives: pl.DataFrame, names: list[str]) -> MatchResult:
+    con.register("_names", pl.DataFrame({"scenario": names}))
+    in_run = ("scenario in (select scenario from _names) and drive_id in (select drive_id from run_drives)")
+    matches = con.sql(f"select * from matches where {in_run} order by scenario, drive_id, ego_id, actor_id, start_frame").pl()
+    con.register("_ids", matches.select("match_id"))
+    return MatchResult(
+        matches=matches,
+        match_phases=con.sql("select * from match_phases where match_id in (select match_id from _ids) "
+                             "order by match_id, phase_index").pl(),
+        kpis=con.sql("select k.* from kpis k join _ids using (match_id) order by scenario, match_id").pl(),
+        coverage=con.sql("select * from coverage where scenario in (select scenario from _names) "
+                         "order by scenario, item, bucket_index nulls last, bucket").pl(),
+        drives=con.sql("select * from drives where drive_id in (select drive_id from run_drives) "
+                       "order by drive_id").pl(),
+    )
+
+
+EXPORTED = ("drives", "matches", "match_phases", "kpis", "coverage", "coverage_samples", "match_runs",
+            "drive_scenarios")
+
+
+def export(con: duckdb.DuckDBPyConnection, out: str | Path) -> None:
+    """Write the output tables as Parquet files in ``out`` (sorted, so reruns give the same files)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for table in EXPORTED:
+        frame = con.sql(f"select * from {table}").pl()
+        keys = [c for c in ("scenario", "drive_id", "match_id", "item", "bucket_index", "bucket", "run_id",
+                            "phase_index") if c in frame.columns]
+        frame.sort(keys, nulls_last=True).write_parquet(out / f"{table}.parquet")

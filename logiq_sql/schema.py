@@ -1,0 +1,181 @@
+"""The canonical tables: names, columns, types, units and meaning.
+
+This module is the one place where the canonical schema is written down. The DuckDB DDL, the column comments,
+the Parquet reader's checks and the docs table in ``docs/tables.md`` are all generated from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import polars as pl
+
+# The evaluation_object_kind values of the spec, in the spec's order.
+OBJECT_KINDS: tuple[str, ...] = (
+    "object", "person", "cyclist", "vehicle", "truck", "trailer", "fod", "animal", "sign", "bus",
+    "motorcycle", "emergency_vehicle", "stationary_vehicle",
+)
+# What a vehicle_actor may be when a scenario's `kinds` parameter is left unset (the spec gives no default).
+VEHICLE_KINDS: tuple[str, ...] = ("vehicle", "truck", "bus", "motorcycle", "emergency_vehicle", "trailer")
+
+TRAFFIC_LIGHT_STATES: tuple[str, ...] = ("green", "yellow", "red", "red_yellow", "off", "unknown")
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    dtype: pl.DataType
+    doc: str
+    nullable: bool = True
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    doc: str
+    columns: tuple[Column, ...]
+
+    @property
+    def polars_schema(self) -> dict[str, pl.DataType]:
+        return {c.name: c.dtype for c in self.columns}
+
+    @property
+    def column_names(self) -> list[str]:
+        return [c.name for c in self.columns]
+
+
+def _c(name: str, dtype: pl.DataType, doc: str, nullable: bool = True) -> Column:
+    return Column(name, dtype, doc, nullable)
+
+
+S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
+
+TRACKS = Table(
+    "tracks",
+    "One row per actor per timestamp, in a right-handed map frame (x east, y north), SI units.",
+    (
+        _c("drive_id", S, "The drive (log, scene, simulation run) this row belongs to.", False),
+        _c("actor_id", S, "Tracking id of the actor inside its drive, as the source names it.", False),
+        _c("kind", S, f"evaluation_object_kind: one of {', '.join(OBJECT_KINDS)}.", False),
+        _c("is_ego", B, "True on the recorded ego (SUT) rows; every row of an ego-less source is False.", False),
+        _c("frame", I, "Sample index, t_s / dt_s rounded; consecutive integers mean consecutive samples.", False),
+        _c("t_s", F, "Time since the start of the drive, seconds.", False),
+        _c("x_m", F, "Centre of the bounding box, metres.", False),
+        _c("y_m", F, "Centre of the bounding box, metres.", False),
+        _c("heading_rad", F, "Yaw of the box, radians counter-clockwise from +x; derived from motion if absent."),
+        _c("speed_mps", F, "Longitudinal speed along the heading, m/s; derived from positions if absent."),
+        _c("accel_mps2", F, "Longitudinal acceleration, m/s^2; derived from speed if absent."),
+        _c("length_m", F, "Box length along the heading, metres."),
+        _c("width_m", F, "Box width across the heading, metres."),
+    ),
+)
+
+DRIVE_INPUTS = Table(
+    "drive_inputs",
+    "One row per drive that ingest saw, accepted or rejected, with where it came from.",
+    (
+        _c("drive_id", S, "Unique id of the drive in this database.", False),
+        _c("source_format", S, "commonroad, scenarionet or parquet.", False),
+        _c("source_path", S, "File the drive was read from.", False),
+        _c("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
+        _c("dt_s", F, "Sample period in seconds."),
+        _c("ego_actor_id", S, "The recorded ego's actor_id; NULL for ego-less sources such as NGSIM."),
+        _c("rows_read", I, "Track rows found in the source.", False),
+        _c("rows_rejected", I, "Track rows dropped at ingest (see reject_reason).", False),
+        _c("status", S, "ingested or rejected.", False),
+        _c("reject_reason", S, "Why the drive (or some of its rows) was rejected."),
+        _c("attribution", S, "Licence and attribution of the data."),
+    ),
+)
+
+LANES = Table(
+    "lanes",
+    "Lanes as polygons in the map frame (WKT), with neighbours and whether they lie in a junction.",
+    (
+        _c("map_id", S, "Map the lane belongs to.", False),
+        _c("lane_id", S, "Lane id inside its map.", False),
+        _c("lane_type", S, "Source lane type (e.g. urban, highway, VEHICLE, BIKE)."),
+        _c("polygon_wkt", S, "Lane area as a WKT POLYGON.", False),
+        _c("centerline_wkt", S, "Centre line as a WKT LINESTRING in driving direction.", False),
+        _c("left_lane_id", S, "Left neighbour lane, NULL if none."),
+        _c("left_same_direction", B, "True if the left neighbour is driven in the same direction."),
+        _c("right_lane_id", S, "Right neighbour lane, NULL if none."),
+        _c("right_same_direction", B, "True if the right neighbour is driven in the same direction."),
+        _c("speed_limit_mps", F, "Speed limit, m/s, NULL if unknown."),
+        _c("junction_id", S, "Junction (intersection) this lane lies in, NULL if none."),
+    ),
+)
+
+LANE_SUCCESSORS = Table(
+    "lane_successors",
+    "Directed lane graph: a car at the end of lane_id may continue on successor_id.",
+    (
+        _c("map_id", S, "Map.", False),
+        _c("lane_id", S, "From lane.", False),
+        _c("successor_id", S, "To lane.", False),
+        _c("turn", S, "left, right, straight or NULL when the source does not say."),
+    ),
+)
+
+JUNCTIONS = Table(
+    "junctions",
+    "Junctions (intersections) as the union of their lanes' polygons.",
+    (
+        _c("map_id", S, "Map.", False),
+        _c("junction_id", S, "Junction id.", False),
+        _c("polygon_wkt", S, "Junction area as WKT.", False),
+    ),
+)
+
+TRAFFIC_LIGHTS = Table(
+    "traffic_lights",
+    "Traffic lights and the lanes they govern.",
+    (
+        _c("map_id", S, "Map.", False),
+        _c("light_id", S, "Light id.", False),
+        _c("lane_id", S, "A lane this light governs (one row per lane).", False),
+        _c("x_m", F, "Light position, metres (NULL if unknown)."),
+        _c("y_m", F, "Light position, metres (NULL if unknown)."),
+    ),
+)
+
+TRAFFIC_LIGHT_STATES = Table(
+    "traffic_light_states",
+    "State of every light at every frame of a drive, where the data has it.",
+    (
+        _c("drive_id", S, "Drive.", False),
+        _c("light_id", S, "Light id.", False),
+        _c("frame", I, "Sample index.", False),
+        _c("state", S, f"One of {', '.join(TRAFFIC_LIGHT_STATES)}.", False),
+    ),
+)
+
+MAP_TABLES = (LANES, LANE_SUCCESSORS, JUNCTIONS, TRAFFIC_LIGHTS)
+ALL_INPUT_TABLES = (DRIVE_INPUTS, TRACKS, *MAP_TABLES, TRAFFIC_LIGHT_STATES)
+
+
+def empty(table: Table) -> pl.DataFrame:
+    """An empty frame with the table's schema."""
+    return pl.DataFrame(schema=table.polars_schema)
+
+# Box size used when a source gives none (length_m, width_m), by kind; documented in docs/tables.md.
+DEFAULT_SIZE_M: dict[str, tuple[float, float]] = {
+    "vehicle": (4.5, 1.8), "truck": (8.0, 2.5), "bus": (12.0, 2.5), "trailer": (8.0, 2.5),
+    "motorcycle": (2.2, 0.8), "emergency_vehicle": (5.5, 2.0), "stationary_vehicle": (4.5, 1.8),
+    "cyclist": (1.8, 0.6), "person": (0.6, 0.6), "animal": (1.0, 0.5),
+    "object": (0.5, 0.5), "fod": (0.3, 0.3), "sign": (0.3, 0.3),
+}
+
+TRACK_LANES = Table(
+    "track_lanes",
+    "Every lane within 3 m of every track row (shapely, at ingest); scenarios apply their own tolerance.",
+    (
+        _c("drive_id", S, "Drive.", False),
+        _c("actor_id", S, "Actor.", False),
+        _c("frame", I, "Sample index.", False),
+        _c("lane_id", S, "A lane of the drive's map.", False),
+        _c("dist_m", F, "Distance from the box centre to the lane polygon, 0 inside.", False),
+        _c("heading_diff_rad", F, "Actor heading minus lane direction at the nearest centre-line point, in (-pi, pi].", False),
+    ),
+)
+LOCALISATION_RANGE_M = 3.0

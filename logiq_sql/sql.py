@@ -1,0 +1,83 @@
+"""Read query files, find their parameters, bind them, run them, and render them for people."""
+
+from __future__ import annotations
+
+import functools
+import re
+
+import duckdb
+import sqlglot
+from sqlglot import exp
+
+from logiq_sql import units
+from logiq_sql.errors import ScenarioError
+from logiq_sql.paths import query_path
+
+_UNIT_CONSTANT = re.compile(r"^([a-z0-9]+)_per_([a-z0-9]+)$")
+
+
+@functools.cache
+def query_text(relative: str) -> str:
+    path = query_path(relative)
+    if not path.is_file():
+        raise ScenarioError(f"query file queries/{relative} not found.")
+    return path.read_text()
+
+
+@functools.cache
+def placeholders(relative: str) -> tuple[str, ...]:
+    """The ``$name`` parameters a query file uses, in order of first use."""
+    tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+    seen: dict[str, None] = {}
+    for node in tree.find_all(exp.Placeholder):
+        seen[node.name] = None
+    return tuple(seen)
+
+
+def unit_constant(name: str) -> float | None:
+    """``mph_per_mps`` -> how many mph one m/s is. None if ``name`` is not such a constant."""
+    m = _UNIT_CONSTANT.match(name)
+    if not m or m.group(1) not in units.UNITS or m.group(2) not in units.UNITS:
+        return None
+    return units.factor(m.group(2)) / units.factor(m.group(1))
+
+
+def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
+    """The values for exactly the parameters ``relative`` uses; unit constants are computed."""
+    out: dict[str, object] = {}
+    for name in placeholders(relative):
+        if name in values:
+            out[name] = values[name]
+        elif (const := unit_constant(name)) is not None:
+            out[name] = const
+        else:
+            raise ScenarioError(f"queries/{relative} uses ${name}, which no scenario parameter provides.")
+    return out
+
+
+def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object]) -> None:
+    """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours)."""
+    con.execute(f"create or replace temp table {table} as {query_text(relative)}", bind(relative, values))
+
+
+def _literal(value: object) -> str:
+    if isinstance(value, str):
+        return "'" + value.replace("'", "''") + "'"
+    if value is None:
+        return "null"
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
+    """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
+    the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
+    used: dict[str, object] = {}
+    for _, rel in steps:
+        used.update(bind(rel, values))
+    lines = [f"set variable {name} = {_literal(v)};" for name, v in used.items()]
+    ctes = []
+    for name, rel in steps[:-1]:
+        body = "\n".join("    " + line if line else "" for line in query_text(rel).rstrip().splitlines())
+        ctes.append(f"{name} as (\n{body}\n)")
+    last = query_text(steps[-1][1]).rstrip()
+    return "\n".join(lines) + "\n\nwith\n\n" + ",\n\n".join(ctes) + "\n\n" + "select * from (\n" + last + "\n);\n"

@@ -1,0 +1,46 @@
+-- kpis: base_vehicle_scenario
+-- grain: one row per match: the vehicle_actor's KPIs and the Ego's TTC/MTTC to it, spec units
+-- reads: scenario_matches, tracks, relations
+-- params: $mph_per_mps (unit constant)
+--
+-- ego_min_ttc_to_vehicle_s / ego_min_mttc_to_vehicle_s: least per-frame ttc_s / mttc_s of relations over the
+-- interval, NULLs skipped; NULL when the pair never closes in (no defined sample).
+with
+
+actor as (
+    select
+        m.match_id,
+        max(a.kind) as vehicle_object_kind,
+        max(a.actor_id) as vehicle_tracking_id,
+        avg(a.speed_mps) * $mph_per_mps as vehicle_avg_speed_mph,
+        max(a.speed_mps) * $mph_per_mps as vehicle_max_speed_mph,
+        min(a.speed_mps) * $mph_per_mps as vehicle_min_speed_mph,
+        max(a.accel_mps2) as vehicle_max_lon_acceleration_mpsps,
+        min(a.accel_mps2) as vehicle_min_lon_acceleration_mpsps,
+        max(case when a.frame = m.start_frame then a.speed_mps end) * $mph_per_mps as vehicle_speed_at_start_mph
+    from scenario_matches as m
+    inner join tracks as a
+        on m.drive_id = a.drive_id and m.actor_id = a.actor_id
+        and a.frame between m.start_frame and m.end_frame
+    group by m.match_id
+),
+
+risk as (
+    select
+        m.match_id,
+        min(r.ttc_s) as ego_min_ttc_to_vehicle_s,
+        min(r.mttc_s) as ego_min_mttc_to_vehicle_s
+    from scenario_matches as m
+    inner join relations as r
+        on m.drive_id = r.drive_id and m.ego_id = r.ego_id and m.actor_id = r.actor_id
+        and r.frame between m.start_frame and m.end_frame
+    group by m.match_id
+)
+
+select
+    actor.*,
+    risk.ego_min_ttc_to_vehicle_s,
+    risk.ego_min_mttc_to_vehicle_s
+from actor
+left join risk
+    on actor.match_id = risk.match_id

@@ -1,0 +1,13 @@
+-- match: single_phase
+-- grain: one row per match of a one-phase scenario: the phase interval is the match interval
+-- reads: phase_1 (the scenario's only phase)
+-- params: none
+select
+    drive_id,
+    ego_id,
+    actor_id,
+    start_frame,
+    end_frame,
+    start_s,
+    end_s
+from phase_1

@@ -1,0 +1,43 @@
+-- relations: egos
+-- grain: one row per (drive_id, ego_id): the actors that play the SUT in this run
+-- reads: tracks, drive_inputs, run_drives
+-- params: $ego_mode, $ego_every, $ego_actor_id
+--
+--   auto      the recorded ego where the drive has one, else every actor of kind vehicle (NGSIM)
+--   recorded  the recorded ego only; drives without one get status no_ego
+--   all       every actor of kind vehicle, and the recorded ego
+--   every     every ego_every-th vehicle by actor_id order (1st, 1+N-th, ...), and the recorded ego
+--   id        the actor whose actor_id is ego_actor_id, in every drive that has it
+with
+
+candidates as (
+    select distinct
+        t.drive_id,
+        t.actor_id,
+        t.is_ego,
+        t.kind,
+        d.ego_actor_id
+    from tracks as t
+    inner join run_drives as r
+        on t.drive_id = r.drive_id
+    inner join drive_inputs as d
+        on t.drive_id = d.drive_id
+    where d.status = 'ingested'
+),
+
+numbered as (
+    select
+        *,
+        row_number() over (partition by drive_id, kind order by actor_id) as vehicle_number
+    from candidates
+)
+
+select distinct
+    drive_id,
+    actor_id as ego_id
+from numbered
+where ($ego_mode = 'recorded' and is_ego)
+    or ($ego_mode = 'auto' and (is_ego or (ego_actor_id is null and kind = 'vehicle')))
+    or ($ego_mode = 'all' and (is_ego or kind = 'vehicle'))
+    or ($ego_mode = 'every' and (is_ego or (kind = 'vehicle' and (vehicle_number - 1) % $ego_every = 0)))
+    or ($ego_mode = 'id' and actor_id = $ego_actor_id)

@@ -1,0 +1,201 @@
+-- relations: relations
+-- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
+-- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lanes, lane_successors
+-- params: $relation_range_m
+--
+-- Geometry in the ego frame (x forward along the ego heading, y to the ego's left), boxes from
+-- length_m/width_m around the centre:
+--   dx_m, dy_m          actor centre in the ego frame
+--   lon_gap_m           bumper-to-bumper gap along the ego x axis: |dx| - L_ego/2 - (actor half extent on x),
+--                       0 when the projections overlap
+--   lat_gap_m           side-to-side gap along the ego y axis, same rule
+--   box_distance_m      closest distance between the two boxes, 0 when they overlap (separating-axis test);
+--                       otherwise the least corner-to-box distance over the 8 corners (exact for rectangles)
+--   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor
+--   adjacent_side       'left'/'right' when the actor's lane is the ego lane's same-direction neighbour
+--   closing_speed_mps   rate at which lon_gap shrinks: actor speed along the ego axis minus ego speed,
+--                       sign taken so that positive means closing
+--   time_headway_s      lon_gap / speed of the trailing vehicle (the one behind); NULL if it does not move
+--                       forward
+--   ttc_s               lon_gap / closing speed, for actors whose box overlaps the ego's laterally
+--                       (lat_gap = 0); 0 when the boxes overlap; NULL when not closing or not overlapping
+--   mttc_s              Ozbay et al. (2008) MTTC with constant relative acceleration: the least positive root
+--                       of 0.5*a*t^2 + v*t - lon_gap = 0 (v closing speed, a closing acceleration); D/v when
+--                       |a| < 1e-6; NULL when no positive root or not laterally overlapping; 0 on overlap
+with
+
+ego as (
+    select
+        t.*,
+        el.lane_id as ego_lane_id
+    from tracks as t
+    inner join ego_lanes as el
+        on t.drive_id = el.drive_id and t.actor_id = el.ego_id and t.frame = el.frame
+),
+
+pairs as (
+    select
+        e.drive_id,
+        e.actor_id as ego_id,
+        a.actor_id,
+        a.kind as actor_kind,
+        e.frame,
+        e.t_s,
+        e.ego_lane_id,
+        e.speed_mps as ego_speed_mps,
+        e.accel_mps2 as ego_accel_mps2,
+        e.length_m as ego_length_m,
+        e.width_m as ego_width_m,
+        a.speed_mps as actor_speed_mps,
+        a.accel_mps2 as actor_accel_mps2,
+        a.length_m as actor_length_m,
+        a.width_m as actor_width_m,
+        (a.x_m - e.x_m) * cos(e.heading_rad) + (a.y_m - e.y_m) * sin(e.heading_rad) as dx_m,
+        (a.y_m - e.y_m) * cos(e.heading_rad) - (a.x_m - e.x_m) * sin(e.heading_rad) as dy_m,
+        atan2(sin(a.heading_rad - e.heading_rad), cos(a.heading_rad - e.heading_rad)) as rel_heading_rad
+    from ego as e
+    inner join tracks as a
+        on e.drive_id = a.drive_id and e.frame = a.frame and e.actor_id <> a.actor_id
+    where (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m)
+        <= $relation_range_m * $relation_range_m
+),
+
+rotated as (
+    select
+        *,
+        cos(rel_heading_rad) as c,
+        sin(rel_heading_rad) as s,
+        -(dx_m * cos(rel_heading_rad) + dy_m * sin(rel_heading_rad)) as ego_u_m,
+        dx_m * sin(rel_heading_rad) - dy_m * cos(rel_heading_rad) as ego_v_m
+    from pairs
+),
+
+gaps as (
+    select
+        *,
+        abs(dx_m) - ego_length_m / 2 - abs(actor_length_m / 2 * c) - abs(actor_width_m / 2 * s) as lon_gap_raw_m,
+        abs(dy_m) - ego_width_m / 2 - abs(actor_length_m / 2 * s) - abs(actor_width_m / 2 * c) as lat_gap_raw_m,
+        abs(ego_u_m) - actor_length_m / 2 - abs(ego_length_m / 2 * c) - abs(ego_width_m / 2 * s) as u_gap_raw_m,
+        abs(ego_v_m) - actor_width_m / 2 - abs(ego_length_m / 2 * s) - abs(ego_width_m / 2 * c) as v_gap_raw_m,
+        -- actor corners in the ego frame (p, q = +-1 along the actor's length and width)
+        dx_m + actor_length_m / 2 * c - actor_width_m / 2 * s as a1x,
+        dy_m + actor_length_m / 2 * s + actor_width_m / 2 * c as a1y,
+        dx_m + actor_length_m / 2 * c + actor_width_m / 2 * s as a2x,
+        dy_m + actor_length_m / 2 * s - actor_width_m / 2 * c as a2y,
+        dx_m - actor_length_m / 2 * c - actor_width_m / 2 * s as a3x,
+        dy_m - actor_length_m / 2 * s + actor_width_m / 2 * c as a3y,
+        dx_m - actor_length_m / 2 * c + actor_width_m / 2 * s as a4x,
+        dy_m - actor_length_m / 2 * s - actor_width_m / 2 * c as a4y,
+        -- ego corners in the actor frame
+        ego_u_m + ego_length_m / 2 * c + ego_width_m / 2 * s as e1u,
+        ego_v_m - ego_length_m / 2 * s + ego_width_m / 2 * c as e1v,
+        ego_u_m + ego_length_m / 2 * c - ego_width_m / 2 * s as e2u,
+        ego_v_m - ego_length_m / 2 * s - ego_width_m / 2 * c as e2v,
+        ego_u_m - ego_length_m / 2 * c + ego_width_m / 2 * s as e3u,
+        ego_v_m + ego_length_m / 2 * s + ego_width_m / 2 * c as e3v,
+        ego_u_m - ego_length_m / 2 * c - ego_width_m / 2 * s as e4u,
+        ego_v_m + ego_length_m / 2 * s - ego_width_m / 2 * c as e4v
+    from rotated
+),
+
+measured as (
+    select
+        *,
+        lon_gap_raw_m <= 0 and lat_gap_raw_m <= 0 and u_gap_raw_m <= 0 and v_gap_raw_m <= 0 as boxes_overlap,
+        greatest(lon_gap_raw_m, 0) as lon_gap_m,
+        greatest(lat_gap_raw_m, 0) as lat_gap_m,
+        least(
+            sqrt(power(greatest(abs(a1x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a1y) - ego_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(a2x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a2y) - ego_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(a3x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a3y) - ego_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(a4x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a4y) - ego_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(e1u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e1v) - actor_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(e2u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e2v) - actor_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(e3u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e3v) - actor_width_m / 2, 0), 2)),
+            sqrt(power(greatest(abs(e4u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e4v) - actor_width_m / 2, 0), 2))
+        ) as corner_distance_m,
+        case
+            when dx_m >= 0 then ego_speed_mps - actor_speed_mps * c
+            else actor_speed_mps * c - ego_speed_mps
+        end as closing_speed_mps,
+        case
+            when dx_m >= 0 then ego_accel_mps2 - actor_accel_mps2 * c
+            else actor_accel_mps2 * c - ego_accel_mps2
+        end as closing_accel_mps2
+    from gaps
+),
+
+lane_relation as (
+    select
+        m.*,
+        al.lane_id as actor_lane_id,
+        coalesce(
+            al.lane_id = m.ego_lane_id or ahead.lane_id is not null or behind.lane_id is not null, false
+        ) as same_lane,
+        case
+            when al.lane_id = el.left_lane_id and el.left_same_direction then 'left'
+            when al.lane_id = el.right_lane_id and el.right_same_direction then 'right'
+        end as adjacent_side
+    from measured as m
+    inner join drive_inputs as d
+        on m.drive_id = d.drive_id
+    left join actor_lanes as al
+        on m.drive_id = al.drive_id and m.actor_id = al.actor_id and m.frame = al.frame
+    left join lanes as el
+        on d.map_id = el.map_id and m.ego_lane_id = el.lane_id
+    left join lane_successors as ahead
+        on d.map_id = ahead.map_id and m.ego_lane_id = ahead.lane_id and al.lane_id = ahead.successor_id
+    left join lane_successors as behind
+        on d.map_id = behind.map_id and al.lane_id = behind.lane_id and m.ego_lane_id = behind.successor_id
+),
+
+mttc_roots as (
+    select
+        *,
+        closing_speed_mps * closing_speed_mps + 2 * closing_accel_mps2 * lon_gap_m as discriminant,
+        (-closing_speed_mps + sqrt(greatest(closing_speed_mps * closing_speed_mps + 2 * closing_accel_mps2 * lon_gap_m, 0)))
+            / nullif(closing_accel_mps2, 0) as root_plus_s,
+        (-closing_speed_mps - sqrt(greatest(closing_speed_mps * closing_speed_mps + 2 * closing_accel_mps2 * lon_gap_m, 0)))
+            / nullif(closing_accel_mps2, 0) as root_minus_s
+    from lane_relation
+)
+
+select
+    drive_id,
+    ego_id,
+    actor_id,
+    actor_kind,
+    frame,
+    t_s,
+    dx_m,
+    dy_m,
+    rel_heading_rad,
+    lon_gap_m,
+    lat_gap_m,
+    case when boxes_overlap then 0.0 else corner_distance_m end as box_distance_m,
+    ego_lane_id,
+    actor_lane_id,
+    same_lane,
+    adjacent_side,
+    case when dy_m >= 0 then 'left' else 'right' end as side,
+    closing_speed_mps,
+    case
+        when dx_m < 0 and actor_speed_mps > 0 then lon_gap_m / actor_speed_mps
+        when dx_m >= 0 and ego_speed_mps > 0 then lon_gap_m / ego_speed_mps
+    end as time_headway_s,
+    case
+        when boxes_overlap then 0.0
+        when lat_gap_m > 0 then null
+        when closing_speed_mps > 0 then lon_gap_m / closing_speed_mps
+    end as ttc_s,
+    case
+        when boxes_overlap then 0.0
+        when lat_gap_m > 0 then null
+        when closing_accel_mps2 is null or abs(closing_accel_mps2) < 1e-6 then
+            case when closing_speed_mps > 0 then lon_gap_m / closing_speed_mps end
+        when discriminant < 0 then null
+        when root_plus_s > 0 and root_minus_s > 0 then least(root_plus_s, root_minus_s)
+        when root_plus_s > 0 then root_plus_s
+        when root_minus_s > 0 then root_minus_s
+    end as mttc_s
+from mttc_roots
