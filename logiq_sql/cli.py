@@ -1,0 +1,132 @@
+"""The ``logiq-sql`` command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from logiq_sql.errors import LogiqError
+
+EPILOG = "Docs: README.md and docs/ in the repository. Exit codes: 0 ok, 1 unexpected failure, 2 bad input."
+
+
+def _set_pairs(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or not value:
+            raise LogiqError(f"--set {item}: write NAME=VALUE with a unit, e.g. --set max_distance_from_cyclist=4m.")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def _say(quiet: bool):
+    return None if quiet else (lambda msg: print(msg, file=sys.stderr))
+
+
+def cmd_ingest(args: argparse.Namespace) -> int:
+    from logiq_sql.ingest import ingest
+
+    summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
+    print(f"{args.db}: {summary}")
+    return 0
+
+
+def cmd_match(args: argparse.Namespace) -> int:
+    from logiq_sql.match import match
+
+    result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
+                   drives=args.drive or None, relation_range=args.relation_range, out=args.out,
+                   progress=_say(args.quiet))
+    print(result.summary())
+    if args.out:
+        print(f"Parquet written to {args.out}/")
+    return 0
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from logiq_sql.scenario import list_scenarios
+
+    for s in list_scenarios(include_abstract=args.all):
+        kind = "base scenario" if s.abstract else "scenario"
+        print(f"{s.name}  ({kind}; extends {' -> '.join(s.lineage[1:]) or 'nothing'})")
+        print(f"    {s.description}")
+        for p in s.params.values():
+            default = p.text if p.text is not None else "(no default)"
+            print(f"    --set {p.name}=...  {p.type}, default {default}  [{p.declared_in}]")
+        if not s.abstract:
+            print(f"    phases: {', '.join(ph.name for ph in s.phases)}")
+        print(f"    KPIs: {', '.join(k.name for k in s.kpis)}")
+        print(f"    coverage: {', '.join(c.name for c in s.coverage)}")
+        print()
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from logiq_sql.match import render
+
+    print(render(args.scenario, _set_pairs(args.set), ego=args.ego, relation_range=args.relation_range))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
+        epilog=EPILOG)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("ingest", help="read drives into a DuckDB file", epilog=EPILOG,
+                       description="Read drives (files or folders of them) into the canonical tables of a DuckDB "
+                                   "file. Re-ingesting a drive replaces it.")
+    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet"],
+                   help="commonroad: CommonRoad XML (.xml, .xml.gz); scenarionet: ScenarioNet .pkl; "
+                        "parquet: canonical tables (see docs/tables.md)")
+    p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_ingest)
+
+    p = sub.add_parser("match", help="match scenarios against the drives of a DuckDB file", epilog=EPILOG,
+                       description="Match scenarios and store matches, match_phases, kpis and coverage in the file.")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
+    p.add_argument("--scenario", action="append", metavar="NAME", help="scenario to match (repeatable; default all)")
+    p.add_argument("--ego", default="auto", metavar="all|ID",
+                   help="who is the SUT: auto (recorded ego, else every vehicle; default), recorded, all, "
+                        "every:N, or one actor id")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter, with its unit (e.g. max_distance_from_cyclist=4m)")
+    p.add_argument("--drive", action="append", metavar="ID", help="only these drives (repeatable)")
+    p.add_argument("--relation-range", default="150m", metavar="LENGTH",
+                   help="keep ego-actor pairs whose centres are at most this far apart (default 150m)")
+    p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_match)
+
+    p = sub.add_parser("scenarios", help="list scenarios with their parameters and defaults", epilog=EPILOG)
+    p.add_argument("--all", action="store_true", help="include the base scenarios")
+    p.set_defaults(func=cmd_scenarios)
+
+    p = sub.add_parser("render", help="print the SQL that matches a scenario, with its parameters set",
+                       epilog=EPILOG,
+                       description="Print one statement that finds the scenario's matches: SET VARIABLE lines bind "
+                                   "the parameters, then the query files as CTEs. Runs as-is in DuckDB against a "
+                                   "file written by ingest.")
+    p.add_argument("scenario", metavar="SCENARIO")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
+    p.add_argument("--ego", default="auto", help="as for match")
+    p.add_argument("--relation-range", default="150m", metavar="LENGTH", help="as for match")
+    p.set_defaults(func=cmd_render)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except LogiqError as exc:
+        print(f"logiq-sql: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,155 @@
+"""Each phase on small hand-made tracks with the intervals worked out by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from logiq_sql.match import match
+from tests.helpers import LANE_W, TWO_LANES, Y1, Y2, actor, intervals, lane, make_db, times
+
+FOLLOWER = "follower_vehicle"
+CYCLIST = "cyclist_close_to_moving_sut"
+
+
+def run(db, scenario, **kw):
+    return intervals(match(db, scenarios=[scenario], **kw).matches, scenario)
+
+
+# --- follower_vehicle -------------------------------------------------------------------------------------
+
+def test_follower_at_steady_headway_matches_the_whole_drive(tmp_path):
+    t = times(6.0)
+    # centre gap 20 m, boxes 4.5 m long: bumper gap 15.5 m at 10 m/s -> headway 1.55 s
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("f", t, 80 + 10 * t, Y1)])
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 6.0)]
+
+
+def test_follower_headway_limits_are_honoured(tmp_path):
+    t = times(6.0)
+    # bumper gap 75.5 m at 10 m/s -> 7.55 s: beyond the default 5 s, inside 8 s
+    db = make_db(tmp_path, [actor("ego", t, 200 + 10 * t, Y1, is_ego=True), actor("f", t, 120 + 10 * t, Y1)])
+    assert run(db, FOLLOWER) == []
+    assert run(db, FOLLOWER, overrides={"max_distance_from_sut_in_time_units": "8sec"}) == [("ego", "f", 0.0, 6.0)]
+    assert run(db, FOLLOWER, overrides={"max_distance_from_sut_in_time_units": "8sec",
+                                        "min_distance_from_sut_in_time_units": "7.6s"}) == []
+
+
+def test_follower_must_be_behind_and_in_the_same_lane(tmp_path):
+    t = times(6.0)
+    db = make_db(tmp_path, [
+        actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+        actor("ahead", t, 120 + 10 * t, Y1),        # in front: a lead vehicle, not a follower
+        actor("beside", t, 80 + 10 * t, Y2),        # behind but in the left lane
+    ])
+    assert run(db, FOLLOWER) == []
+
+
+def test_follower_shorter_than_min_scenario_duration_is_not_a_match(tmp_path):
+    t = times(3.0)
+    ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)
+    short = actor("f", t[:10], 80 + 10 * t[:10], Y1)   # 0.0 .. 0.9 s: 0.9 s long
+    exact = actor("g", t[:11], 60 + 10 * t[:11], Y1)   # 0.0 .. 1.0 s: exactly 1 s
+    db = make_db(tmp_path, [ego, short, exact])
+    assert run(db, FOLLOWER) == [("ego", "g", 0.0, 1.0)]
+    assert run(db, FOLLOWER, overrides={"min_scenario_duration": "0.9s"}) == [("ego", "f", 0.0, 0.9),
+                                                                             ("ego", "g", 0.0, 1.0)]
+
+
+def test_follower_kinds_filter(tmp_path):
+    t = times(3.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("truck", t, 80 + 10 * t, Y1, kind="truck", length=10.0),
+                            actor("bike", t, 85 + 10 * t, Y1, kind="cyclist", length=1.8, width=0.6)])
+    assert [m[1] for m in run(db, FOLLOWER)] == ["truck"]          # unset kinds: vehicle kinds only
+    assert run(db, FOLLOWER, overrides={"kinds": "vehicle"}) == []
+    assert [m[1] for m in run(db, FOLLOWER, overrides={"kinds": "cyclist,truck"})] == ["bike", "truck"]
+
+
+def test_ego_lane_change_ends_the_phase(tmp_path):
+    t = times(8.0)
+    # the ego moves from the right lane to the left lane between t=3 and t=5 (1.75 m/s sideways)
+    y = np.clip(Y1 + (t - 3.0) * (LANE_W / 2.0), Y1, Y2)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, y, is_ego=True), actor("f", t, 80 + 10 * t, Y1)])
+    (m,) = run(db, FOLLOWER)
+    # the follower stays in L1; the ego's centre crosses into L2 at t = 4.0 (y = 3.5), and the lane change is
+    # counted once it is more than the 1 m tolerance away from L1 (y > 4.5, from t = 4.6)
+    assert m[2] == 0.0 and 3.9 <= m[3] <= 4.6
+
+
+def test_follower_on_the_previous_road_segment_counts_as_same_lane(tmp_path):
+    t = times(5.0)
+    # the road is split in two segments at x = 150: A then B; the ego is on B, the follower on A until t = 3
+    lanes = [lane("A", 0.0, 0.0, 150.0), lane("B", 0.0, 150.0, 2000.0)]
+    ego = actor("ego", t, 160 + 10 * t, Y1, is_ego=True)
+    fol = actor("f", t, 120 + 10 * t, Y1)
+    linked = make_db(tmp_path / "linked", [ego, fol], lanes,
+                     successors=[dict(map_id="road", lane_id="A", successor_id="B", turn=None)])
+    assert run(linked, FOLLOWER) == [("ego", "f", 0.0, 5.0)]
+    # without the map link the ego never drove on A in this drive, so the follower is on the ego's road only
+    # once it is on B: from t = 3.1 (at t = 3.0 it sits on the boundary and A wins the tie by id)
+    unlinked = make_db(tmp_path / "unlinked", [ego, fol], lanes)
+    assert run(unlinked, FOLLOWER) == [("ego", "f", 3.1, 5.0)]
+
+
+def test_same_road_limit_uses_the_lanes_the_ego_drove_in(tmp_path):
+    t = times(6.0)
+    lanes = [lane("A", 0.0, 0.0, 150.0), lane("B", 0.0, 150.0, 2000.0)]
+    # the ego crosses from A to B at t = 2 s (x = 150); the follower, 30 m behind, stays on A until t = 5 s
+    ego = actor("ego", t, 130 + 10 * t, Y1, is_ego=True)
+    fol = actor("f", t, 100 + 10 * t, Y1)
+    db = make_db(tmp_path, [ego, fol], lanes)
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 6.0)]
+    # with a 1 s limit the follower, still on A, is no longer on the ego's road from about t = 3 s on
+    (m,) = run(db, FOLLOWER, overrides={"same_road_limit": "1sec"})
+    assert m[2] == 0.0 and 2.9 <= m[3] <= 3.3
+
+
+# --- cyclist_close_to_moving_sut --------------------------------------------------------------------------
+
+def cyclist_at(t, x, y):
+    return actor("c", t, x, y, kind="cyclist", length=1.8, width=0.6)
+
+
+def test_cyclist_distance_band_and_ego_speed(tmp_path):
+    t = times(4.0)
+    # ego box y in [0.85, 2.65]; cyclist box y from 3.0+...: lateral box gap = y_c - 0.3 - 2.65
+    ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)
+    near = actor("near", t, 100 + 10 * t, 6.95, kind="cyclist", length=1.8, width=0.6)   # gap 4.0 m
+    far = actor("far", t, 100 + 10 * t, 8.95, kind="cyclist", length=1.8, width=0.6)    # gap 6.0 m
+    car = actor("car", t, 100 + 10 * t, 6.95)                                            # not a cyclist
+    db = make_db(tmp_path, [ego, near, far, car])
+    assert run(db, CYCLIST) == [("ego", "near", 0.0, 4.0)]
+    assert run(db, CYCLIST, overrides={"max_distance_from_cyclist": "3.9m"}) == []
+    assert [m[1] for m in run(db, CYCLIST, overrides={"max_distance_from_cyclist": "6m"})] == ["far", "near"]
+    assert run(db, CYCLIST, overrides={"min_distance_from_cyclist": "4.5m",
+                                       "max_distance_from_cyclist": "6m"}) == [("ego", "far", 0.0, 4.0)]
+
+
+def test_cyclist_needs_a_moving_ego(tmp_path):
+    t = times(4.0)
+    # ego speeds up from 0 at 1 m/s^2: 5 kph (1.389 m/s) reached at t ~= 1.39 s
+    x = 100 + 0.5 * t**2
+    ego = actor("ego", t, x, Y1, is_ego=True)
+    cyc = actor("c", t, x + 3.0, 5.0, kind="cyclist", length=1.8, width=0.6)
+    db = make_db(tmp_path, [ego, cyc])
+    (m,) = run(db, CYCLIST)
+    assert 1.3 <= m[2] <= 1.5 and m[3] == 4.0
+    # 20 kph = 5.56 m/s is never reached: the ego tops out at 4 m/s
+    assert run(db, CYCLIST, overrides={"sut_minimal_speed": "20kph"}) == []
+
+
+def test_long_cyclist_episode_is_cut_into_pieces_of_max_phase_duration(tmp_path):
+    t = times(12.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("c", t, 100 + 10 * t, 5.0, kind="cyclist", length=1.8, width=0.6)])
+    assert run(db, CYCLIST) == [("ego", "c", 0.0, 5.0), ("ego", "c", 5.1, 10.1), ("ego", "c", 10.2, 12.0)]
+    assert run(db, CYCLIST, overrides={"max_phase_duration": "20s"}) == [("ego", "c", 0.0, 12.0)]
+
+
+def test_dropped_frames_split_a_phase(tmp_path):
+    t = times(6.0)
+    keep = (t < 2.0) | (t > 2.25)  # frames 20, 21, 22 are missing for the follower
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("f", t[keep], 80 + 10 * t[keep], Y1)])
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 1.9), ("ego", "f", 2.3, 6.0)]
