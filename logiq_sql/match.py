@@ -258,10 +258,12 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     con.execute("begin transaction")
     try:
-        for table in PERSISTED:  # the temp table of the run shadows the stored one of the same name
-            con.execute(f"create table if not exists main.{table} as select * from temp.{table} limit 0")
-            con.execute(f"delete from main.{table} where drive_id in (select drive_id from run_drives)")
-            con.execute(f"insert into main.{table} select * from temp.{table}")
+        # the run's temp table shadows the stored one of the same name: name the file's catalog
+        stored = '"' + con.execute("select current_database()").fetchone()[0].replace('"', '""') + '".main'
+        for table in PERSISTED:
+            con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
+            con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
+            con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
         for matches, phases, kpis, samples, buckets, s, egos in results:
             for table in ("matches", "match_phases", "kpis", "coverage_samples"):
                 con.execute(

@@ -1,0 +1,81 @@
+"""The phase SQL against a brute-force Python oracle on random per-frame conditions.
+
+The follower sits either at a headway inside [0 s, 5 s] or far outside it, frame by frame, and some of its
+frames are missing; the oracle walks the frames one by one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import polars as pl
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from logiq_sql.match import match
+from tests.helpers import Y1, intervals, make_db
+
+DT = 0.1
+
+
+def oracle_islands(frames_ok: list[bool], min_s: float | None, max_s: float | None) -> list[tuple[float, float]]:
+    out, start = [], None
+    for i, ok in enumerate([*frames_ok, False]):
+        if ok and start is None:
+            start = i
+        if not ok and start is not None:
+            end = i - 1
+            if max_s is not None:  # consecutive pieces spanning at most max_s
+                span = math.floor(max_s / DT + 1e-9) + 1
+                for a in range(start, end + 1, span):
+                    out.append((a, min(a + span - 1, end)))
+            elif (end - start) * DT >= min_s - 1e-9:
+                out.append((start, end))
+            start = None
+    return [(round(a * DT, 3), round(b * DT, 3)) for a, b in out]
+
+
+def drive(ok: list[bool], present: list[bool], kind: str, near: float, far: float, lateral: bool) -> pl.DataFrame:
+    n = len(ok)
+    t = np.round(np.arange(n) * DT, 6)
+    ego = pl.DataFrame({"drive_id": "d1", "actor_id": "ego", "kind": "vehicle", "is_ego": True, "t_s": t,
+                        "x_m": 100 + 10 * t, "y_m": Y1, "heading_rad": 0.0, "speed_mps": 10.0,
+                        "length_m": 4.5, "width_m": 1.8})
+    offset = np.where(ok, near, far)
+    other = pl.DataFrame({
+        "drive_id": "d1", "actor_id": "a", "kind": kind, "is_ego": False, "t_s": t,
+        "x_m": 100 + 10 * t - (0.0 if lateral else offset), "y_m": Y1 + (offset if lateral else 0.0),
+        "heading_rad": 0.0, "speed_mps": 10.0, "length_m": 4.5, "width_m": 1.8,
+    }).filter(pl.Series(present))
+    return [ego, other]
+
+
+FRAMES = st.integers(min_value=2, max_value=60).flatmap(
+    lambda n: st.tuples(st.lists(st.booleans(), min_size=n, max_size=n),
+                        st.lists(st.booleans(), min_size=n, max_size=n).map(
+                            lambda xs: [x or (i % 7 != 3) for i, x in enumerate(xs)])))
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames=FRAMES, min_s=st.sampled_from([0.0, 0.5, 1.0, 2.0]))
+def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s):
+    ok, present = frames
+    # centre offset 20 m -> gap 15.5 m -> 1.55 s; 90 m -> gap 85.5 m -> 8.55 s (outside [0, 5] s)
+    db = make_db(tmp_path_factory.mktemp("f"), drive(ok, present, "vehicle", 20.0, 90.0, lateral=False))
+    got = intervals(match(db, scenarios=["follower_vehicle"], ego="recorded",
+                          overrides={"min_scenario_duration": f"{min_s}s"}).matches, "follower_vehicle")
+    expected = oracle_islands([o and p for o, p in zip(ok, present)], min_s, None)
+    assert [(a, b) for _, _, a, b in got] == expected
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames=FRAMES, max_s=st.sampled_from([0.3, 1.0, 2.55]))
+def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s):
+    ok, present = frames
+    # lateral centre offset 4 m -> box gap 2.2 m (inside [0, 5] m); 12 m -> 10.2 m (outside)
+    db = make_db(tmp_path_factory.mktemp("c"), drive(ok, present, "cyclist", 4.0, 12.0, lateral=True))
+    got = intervals(match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded",
+                          overrides={"max_phase_duration": f"{max_s}s"}).matches, "cyclist_close_to_moving_sut")
+    expected = oracle_islands([o and p for o, p in zip(ok, present)], None, max_s)
+    assert [(a, b) for _, _, a, b in got] == expected
