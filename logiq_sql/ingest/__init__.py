@@ -56,6 +56,9 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return out
 
 
+BATCH_ROWS = 2_000_000  # drives are written in batches of about this many track rows (bounded memory)
+
+
 def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
            progress: Callable[[str], None] | None = None) -> IngestSummary:
     """Read every file of ``paths`` with the ``fmt`` reader into the DuckDB file ``db_path``."""
@@ -65,6 +68,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     files = expand(fmt, paths)
     con = db.connect(db_path)
     summary = IngestSummary()
+    batch: list[DriveData] = []
     try:
         for i, path in enumerate(files, 1):
             try:
@@ -75,16 +79,26 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
                 if progress:
                     progress(f"[{i}/{len(files)}] {path.name}: rejected: {exc}")
                 continue
-            for drive in drives:
-                write_drive(con, drive)
-                summary.drives += 1
-                summary.rows += drive.rows_read - drive.rows_rejected
-                summary.rows_rejected += drive.rows_rejected
+            batch += drives
             if progress:
                 progress(f"[{i}/{len(files)}] {path.name}: {len(drives)} drive(s)")
+            if sum(d.tracks.height for d in batch) >= BATCH_ROWS:
+                _count(summary, write_drives(con, batch))
+                batch = []
+        _count(summary, write_drives(con, batch))
     finally:
         con.close()
     return summary
+
+
+def _count(summary: IngestSummary, written: list[tuple[DriveData, int]]) -> None:
+    for drive, kept in written:
+        if kept:
+            summary.drives += 1
+            summary.rows += kept
+            summary.rows_rejected += (drive.rows_read or kept) - kept
+        else:
+            summary.rejected += 1
 
 
 def _record_rejected(con: duckdb.DuckDBPyConnection, fmt: str, path: Path, reason: str) -> None:
@@ -143,44 +157,64 @@ def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
     return filled, tracks.height - deduped.height, reasons
 
 
-def write_drive(con: duckdb.DuckDBPyConnection, drive: DriveData) -> None:
-    """Replace one drive (and its map) in the file, in one transaction."""
-    try:
-        tracks, dropped, reasons = clean_tracks(drive)
-        if tracks.is_empty():
-            raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows.")
-    except InputError as exc:
-        _record_rejected_drive(con, drive, str(exc))
-        return
-    reason = "; ".join(r for r in ([drive.reject_reason] if drive.reject_reason else []) + reasons) or None
+def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> list[tuple[DriveData, int]]:
+    """Replace these drives (and their maps) in the file, in one transaction.
+
+    Returns each drive with the number of track rows kept (0 when the drive was rejected).
+    """
+    accepted: list[tuple[DriveData, pl.DataFrame, int, str | None]] = []
+    written: list[tuple[DriveData, int]] = []
+    for drive in drives:
+        try:
+            tracks, dropped, reasons = clean_tracks(drive)
+            if tracks.is_empty():
+                raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows.")
+        except InputError as exc:
+            _record_rejected_drive(con, drive, str(exc))
+            written.append((drive, 0))
+            continue
+        reason = "; ".join(([drive.reject_reason] if drive.reject_reason else []) + reasons) or None
+        accepted.append((drive, tracks, dropped, reason))
+        written.append((drive, tracks.height))
+    if not accepted:
+        return written
+    ids = pl.DataFrame({"drive_id": [d.drive_id for d, *_ in accepted]})
+    maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
     con.execute("begin transaction")
     try:
+        con.register("_drive_ids", ids)
+        con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
         for table in ("tracks", "track_lanes", "traffic_light_states", "drive_inputs"):
-            con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
-        if drive.map_id is not None:
+            con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+        for table in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+            con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
+        for drive in maps.values():
             for table in ("lanes", "lane_successors", "junctions", "traffic_lights"):
-                con.execute(f"delete from {table} where map_id = $m", {"m": drive.map_id})
-            db.insert(con, "lanes", drive.lanes)
-            db.insert(con, "lane_successors", drive.lane_successors)
-            db.insert(con, "junctions", drive.junctions)
-            db.insert(con, "traffic_lights", drive.traffic_lights)
-        db.insert(con, "traffic_light_states", drive.traffic_light_states)
-        con.register("tracks_raw", tracks)
-        staged = con.sql(query_path("staging/tracks.sql").read_text()).pl()
+                db.insert(con, table, getattr(drive, table))
+        for drive, *_ in accepted:
+            db.insert(con, "traffic_light_states", drive.traffic_light_states)
+        con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
+        con.execute("create or replace temp table _staged as " + query_path("staging/tracks.sql").read_text())
         con.unregister("tracks_raw")
-        db.insert(con, "tracks", staged)
-        db.insert(con, "track_lanes", locate(staged, drive.lanes))
+        con.execute("insert into tracks select * from _staged")
+        for map_id, drive in maps.items():
+            on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
+            con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
+            staged = con.sql("select drive_id, actor_id, frame, x_m, y_m, heading_rad from _staged "
+                             "where drive_id in (select drive_id from _on_map)").pl()
+            db.insert(con, "track_lanes", locate(staged, drive.lanes))
         db.insert(con, "drive_inputs", pl.DataFrame([{
-            "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
-            "map_id": drive.map_id, "dt_s": drive.dt_s, "ego_actor_id": drive.ego_actor_id,
-            "rows_read": drive.rows_read or drive.tracks.height,
-            "rows_rejected": drive.rows_rejected + dropped, "status": "ingested",
-            "reject_reason": reason, "attribution": drive.attribution,
-        }], schema=schema.DRIVE_INPUTS.polars_schema))
+            "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
+            "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
+            "rows_read": d.rows_read or d.tracks.height, "rows_rejected": d.rows_rejected + dropped,
+            "status": "ingested", "reject_reason": reason, "attribution": d.attribution,
+        } for d, _, dropped, reason in accepted], schema=schema.DRIVE_INPUTS.polars_schema))
+        con.execute("drop table _staged")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
         raise
+    return written
 
 
 def _record_rejected_drive(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
