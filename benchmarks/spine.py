@@ -25,7 +25,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql.ingest import ingest
+from logiq_sql.ingestion import ingest
 from logiq_sql.match import match
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -25,7 +25,7 @@ def _say(quiet: bool):
 
 
 def cmd_ingest(args: argparse.Namespace) -> int:
-    from logiq_sql.ingest import ingest
+    from logiq_sql.ingestion import ingest
 
     summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
     print(f"{args.db}: {summary}")

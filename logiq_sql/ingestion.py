@@ -17,7 +17,7 @@ import polars as pl
 
 from logiq_sql import db, schema
 from logiq_sql.errors import InputError, LogiqError, did_you_mean
-from logiq_sql.ingest.base import DriveData
+from logiq_sql.readers.base import DriveData
 from logiq_sql.localise import locate
 from logiq_sql.paths import query_path
 
@@ -26,7 +26,7 @@ FORMATS = ("commonroad", "scenarionet", "parquet")
 
 
 def _reader(fmt: str) -> Callable[[Path], list[DriveData]]:
-    module = importlib.import_module(f"logiq_sql.ingest.{fmt}")
+    module = importlib.import_module(f"logiq_sql.readers.{fmt}")
     return getattr(module, f"read_{fmt}")
 _SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
 

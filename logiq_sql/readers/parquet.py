@@ -18,7 +18,7 @@ import polars as pl
 
 from logiq_sql import schema
 from logiq_sql.errors import InputError, did_you_mean
-from logiq_sql.ingest.base import DriveData
+from logiq_sql.readers.base import DriveData
 
 REQUIRED = ("drive_id", "actor_id", "kind", "t_s", "x_m", "y_m")
 _NUMERIC = ("t_s", "x_m", "y_m", "heading_rad", "speed_mps", "accel_mps2", "length_m", "width_m")

@@ -1,0 +1,1 @@
+"""Format readers: each turns one source file into DriveData (canonical columns)."""
