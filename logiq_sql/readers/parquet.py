@@ -58,10 +58,11 @@ def read_parquet(path: str | Path) -> list[DriveData]:
     folder = path if path.is_dir() else path.parent
     tracks_file = path / "tracks.parquet" if path.is_dir() else path
     raw = _read(tracks_file)
+    unknown = [c for c in raw.columns if c not in schema.TRACKS.column_names]
     for col in REQUIRED:
         if col not in raw.columns:
             raise InputError(
-                f"{tracks_file}: missing column '{col}'.{did_you_mean(col, raw.columns)}\n\n"
+                f"{tracks_file}: missing column '{col}'.{did_you_mean(col, unknown, cutoff=0.5)}\n\n"
                 f"Hint: tracks need {', '.join(REQUIRED)}; see docs/tables.md."
             )
     for col in _NUMERIC:
