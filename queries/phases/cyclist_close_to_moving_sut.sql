@@ -43,7 +43,7 @@ pieces as (
         *,
         floor(
             (frame - min(frame) over (partition by drive_id, ego_id, actor_id, island))
-            / (floor($max_phase_duration_s / dt_s + 1e-9) + 1)
+            / (floor($max_phase_duration_s / nullif(dt_s, 0) + 1e-9) + 1)
         ) as piece
     from islands
 )
