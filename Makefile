@@ -16,9 +16,20 @@ venv: $(BIN)/logiq-sql
 
 demo: venv
 	rm -f $(DEMO_DB)
-	$(BIN)/logiq-sql ingest commonroad tests/data/commonroad_ngsim --db $(DEMO_DB)
-	$(BIN)/logiq-sql ingest scenarionet tests/data/nuscenes_mini_scenarionet --db $(DEMO_DB)
+	$(BIN)/logiq-sql ingest commonroad tests/data/commonroad_ngsim --db $(DEMO_DB) --quiet
+	$(BIN)/logiq-sql ingest scenarionet tests/data/nuscenes_mini_scenarionet --db $(DEMO_DB) --quiet
 	$(BIN)/logiq-sql match --db $(DEMO_DB) --out demo/out
+	@echo; echo "Closest followers (NGSIM: every car is the SUT in turn):"
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 8 "select m.drive_id, m.ego_id, m.actor_id, m.start_s, m.end_s, \
+	  k.ego_avg_speed_mph, k.ego_min_distance_to_vehicle_m as min_gap_m, k.ego_min_ttc_to_vehicle_s as min_ttc_s \
+	  from matches m join kpis k using (match_id) where m.scenario = 'follower_vehicle' order by min_gap_m limit 8"
+	@echo; echo "Coverage of follower_vehicle, ego_speed_at_start (mph):"
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select bucket, hits from coverage where scenario = 'follower_vehicle' \
+	  and item = 'ego_speed_at_start' order by bucket_index nulls last"
+	@echo; echo "Cyclist matches (nuScenes); the closest moving cyclist of the bundled scenes passes 5.2 m away:"
+	@$(BIN)/logiq-sql match --db $(DEMO_DB) --scenario cyclist_close_to_moving_sut --set max_distance_from_cyclist=6m --quiet
+	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/"
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, sum(matches) as matches from drives group by 1"
 
 test: venv
 	$(BIN)/python -m pytest -q

@@ -69,6 +69,19 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_query(args: argparse.Namespace) -> int:
+    import polars as pl
+
+    from logiq_sql.db import connect
+
+    with connect(args.db, read_only=True) as con:
+        frame = con.sql(args.sql).pl()
+    with pl.Config(tbl_rows=args.limit, tbl_cols=-1, fmt_str_lengths=40, tbl_width_chars=200,
+                   tbl_hide_dataframe_shape=True, float_precision=2):
+        print(frame)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
@@ -116,6 +129,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego", default="auto", help="as for match")
     p.add_argument("--relation-range", default="150m", metavar="LENGTH", help="as for match")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("query", help="run read-only SQL against a DuckDB file and print a table", epilog=EPILOG)
+    p.add_argument("sql", metavar="SQL")
+    p.add_argument("--db", required=True, metavar="FILE")
+    p.add_argument("--limit", type=int, default=40, help="rows to print (default 40)")
+    p.set_defaults(func=cmd_query)
     return parser
 
 

@@ -25,7 +25,7 @@ from logiq_sql.paths import query_path
 FORMATS = ("commonroad", "scenarionet", "parquet")
 
 
-def _reader(fmt: str) -> Callable[[Path], list[DriveData]]:
+def _reader(fmt: str) -> Callable[[Path], Iterable[DriveData]]:
     module = importlib.import_module(f"logiq_sql.readers.{fmt}")
     return getattr(module, f"read_{fmt}")
 _SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
@@ -56,7 +56,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return out
 
 
-BATCH_ROWS = 2_000_000  # drives are written in batches of about this many track rows (bounded memory)
+BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
 
 
 def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
@@ -71,20 +71,22 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     batch: list[DriveData] = []
     try:
         for i, path in enumerate(files, 1):
+            count = 0
             try:
-                drives = reader(path)
+                for drive in reader(path):  # readers may stream: drives are written as batches fill up
+                    batch.append(drive)
+                    count += 1
+                    if sum(d.tracks.height for d in batch) >= BATCH_ROWS:
+                        _count(summary, write_drives(con, batch))
+                        batch = []
             except LogiqError as exc:
                 _record_rejected(con, fmt, path, str(exc))
                 summary.rejected += 1
                 if progress:
                     progress(f"[{i}/{len(files)}] {path.name}: rejected: {exc}")
                 continue
-            batch += drives
             if progress:
-                progress(f"[{i}/{len(files)}] {path.name}: {len(drives)} drive(s)")
-            if sum(d.tracks.height for d in batch) >= BATCH_ROWS:
-                _count(summary, write_drives(con, batch))
-                batch = []
+                progress(f"[{i}/{len(files)}] {path.name}: {count} drive(s)")
         _count(summary, write_drives(con, batch))
     finally:
         con.close()
@@ -166,6 +168,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     written: list[tuple[DriveData, int]] = []
     for drive in drives:
         try:
+            if drive.tracks.is_empty() and drive.reject_reason:
+                raise InputError(drive.reject_reason)
             tracks, dropped, reasons = clean_tracks(drive)
             if tracks.is_empty():
                 raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows.")
@@ -200,7 +204,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         for map_id, drive in maps.items():
             on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
             con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
-            staged = con.sql("select drive_id, actor_id, frame, x_m, y_m, heading_rad from _staged "
+            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from _staged "
                              "where drive_id in (select drive_id from _on_map)").pl()
             db.insert(con, "track_lanes", locate(staged, drive.lanes))
         db.insert(con, "drive_inputs", pl.DataFrame([{

@@ -1,9 +1,9 @@
-"""Map localisation: which lanes each track row lies in or near, vectorised with shapely 2.
+"""Map localisation: which lanes each track row lies in or near, vectorised with shapely 2 and numpy.
 
-For every track row, every lane polygon within ``LOCALISATION_RANGE_M`` (3 m) of the box centre is kept with
-its distance (0 inside) and the heading difference to the lane direction at the nearest centre-line point
-(direction from the points 0.5 m before and after it). Scenarios then pick lanes with their own
-``lane_calculation_tolerance_length`` in SQL (``queries/relations/actor_lanes.sql``).
+For every track row of a moving kind (static kinds such as cones are skipped), every lane polygon within
+``LOCALISATION_RANGE_M`` (3 m) of the box centre is kept with its distance (0 inside) and the heading difference
+to the lane direction: the direction of the centre-line segment nearest to the point. Scenarios then pick lanes
+with their own ``lane_calculation_tolerance_length`` in SQL (``queries/relations/actor_lanes.sql``).
 """
 
 from __future__ import annotations
@@ -14,36 +14,66 @@ import shapely
 
 from logiq_sql import schema
 
+STATIC_KINDS = ("object", "fod", "sign")
+CHUNK_POINTS = 250_000  # bounds the memory of one shapely query
 
-def locate(tracks: pl.DataFrame, lanes: pl.DataFrame) -> pl.DataFrame:
-    """Rows of ``track_lanes`` for ``tracks`` (one drive) against ``lanes`` (that drive's map)."""
-    if tracks.is_empty() or lanes.is_empty():
+
+class LaneIndex:
+    """The lanes of one map: an STRtree of polygons and the centre-line vertices for direction look-ups."""
+
+    def __init__(self, lanes: pl.DataFrame):
+        self.lane_ids = lanes["lane_id"].to_numpy()
+        self.polygons = shapely.from_wkt(lanes["polygon_wkt"].to_numpy())
+        self.lines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
+        self.tree = shapely.STRtree(self.polygons)
+        coords, owner = shapely.get_coordinates(self.lines, return_index=True)
+        step = np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)]
+        step[np.r_[True, owner[1:] != owner[:-1]]] = 0.0  # arc length restarts on each line
+        arc = np.zeros(len(coords))
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+        cum = np.cumsum(step)
+        arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))
+        self.span = float(arc.max() if len(arc) else 0.0) + 1.0
+        self.key = arc + owner * self.span  # sorted: lane by lane, arc length within
+        self.coords, self.owner = coords, owner
+        self.first = np.full(len(self.lines), -1)
+        self.last = np.full(len(self.lines), -1)
+        self.first[owner[starts]] = starts
+        self.last[owner[np.r_[starts[1:] - 1, len(coords) - 1]]] = np.r_[starts[1:] - 1, len(coords) - 1]
+
+    def direction(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Heading of the centre-line segment of ``lane`` that contains arc length ``s``."""
+        i = np.searchsorted(self.key, s + lane * self.span, side="right") - 1
+        i = np.clip(i, self.first[lane], np.maximum(self.last[lane] - 1, self.first[lane]))
+        j = np.minimum(i + 1, self.last[lane])
+        d = self.coords[j] - self.coords[i]
+        return np.arctan2(d[:, 1], d[:, 0])
+
+    def locate(self, x: np.ndarray, y: np.ndarray, heading: np.ndarray):
+        """(row index, lane index, distance to polygon, heading minus lane direction) for every pair in range."""
+        points = shapely.points(x, y)
+        row, lane = self.tree.query(points, predicate="dwithin", distance=schema.LOCALISATION_RANGE_M)
+        dist = shapely.distance(self.polygons[lane], points[row])
+        s = shapely.line_locate_point(self.lines[lane], points[row])
+        lane_heading = self.direction(lane, s)
+        diff = np.arctan2(np.sin(heading[row] - lane_heading), np.cos(heading[row] - lane_heading))
+        return row, lane, dist, diff
+
+
+def locate(tracks: pl.DataFrame, lanes: pl.DataFrame, index: LaneIndex | None = None) -> pl.DataFrame:
+    """Rows of ``track_lanes`` for ``tracks`` (drives on one map) against ``lanes`` (that map)."""
+    moving = tracks.filter(~pl.col("kind").is_in(STATIC_KINDS)) if "kind" in tracks.columns else tracks
+    if moving.is_empty() or lanes.is_empty():
         return schema.empty(schema.TRACK_LANES)
-    polygons = shapely.from_wkt(lanes["polygon_wkt"].to_numpy())
-    centerlines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
-    points = shapely.points(tracks["x_m"].to_numpy(), tracks["y_m"].to_numpy())
-    tree = shapely.STRtree(polygons)
-    row_idx, lane_idx = tree.query(points, predicate="dwithin", distance=schema.LOCALISATION_RANGE_M)
-    if len(row_idx) == 0:
-        return schema.empty(schema.TRACK_LANES)
-    pts = points[row_idx]
-    lines = centerlines[lane_idx]
-    dist = shapely.distance(polygons[lane_idx], pts)
-    s = shapely.line_locate_point(lines, pts)
-    before = shapely.line_interpolate_point(lines, np.maximum(s - 0.5, 0.0))
-    after = shapely.line_interpolate_point(lines, s + 0.5)
-    lane_heading = np.arctan2(shapely.get_y(after) - shapely.get_y(before),
-                              shapely.get_x(after) - shapely.get_x(before))
-    heading = tracks["heading_rad"].to_numpy()[row_idx]
-    diff = np.arctan2(np.sin(heading - lane_heading), np.cos(heading - lane_heading))
-    return pl.DataFrame(
-        {
-            "drive_id": tracks["drive_id"].to_numpy()[row_idx],
-            "actor_id": tracks["actor_id"].to_numpy()[row_idx],
-            "frame": tracks["frame"].to_numpy()[row_idx],
-            "lane_id": lanes["lane_id"].to_numpy()[lane_idx],
-            "dist_m": dist,
+    index = index or LaneIndex(lanes)
+    parts = []
+    for start in range(0, moving.height, CHUNK_POINTS):
+        chunk = moving.slice(start, CHUNK_POINTS)
+        row, lane, dist, diff = index.locate(chunk["x_m"].to_numpy(), chunk["y_m"].to_numpy(),
+                                             chunk["heading_rad"].to_numpy())
+        parts.append(pl.DataFrame({
+            "drive_id": chunk["drive_id"].to_numpy()[row], "actor_id": chunk["actor_id"].to_numpy()[row],
+            "frame": chunk["frame"].to_numpy()[row], "lane_id": index.lane_ids[lane], "dist_m": dist,
             "heading_diff_rad": diff,
-        },
-        schema=schema.TRACK_LANES.polars_schema,
-    )
+        }, schema=schema.TRACK_LANES.polars_schema))
+    return pl.concat(parts) if parts else schema.empty(schema.TRACK_LANES)

@@ -157,20 +157,28 @@ def _coverage_samples(s: Scenario, metrics: pl.DataFrame) -> pl.DataFrame:
     return pl.concat(frames) if frames else pl.DataFrame(schema=COVERAGE_SAMPLES.polars_schema)
 
 
+def _metric_columns(s: Scenario) -> dict[str, tuple[str, str]]:
+    """Columns of ``kpis`` for a scenario: its KPIs, then its coverage samples -> (unit, description)."""
+    out = {k.column: (k.unit, f"{k.name} ({k.unit}): {k.description}") for k in s.kpis}
+    for c in s.coverage:
+        out.setdefault(c.column, (c.unit, f"coverage item {c.name} ({c.unit}), sampled at the {c.sample}: "
+                                          f"{c.description}"))
+    return out
+
+
 def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]) -> None:
     con.execute("create table if not exists kpis (match_id varchar not null, scenario varchar not null)")
-    con.execute("comment on table kpis is 'One row per match: every KPI of its scenario, in the spec''s units "
-                "(column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
+    con.execute("comment on table kpis is 'One row per match: every KPI and sampled coverage value of its scenario, in the spec''s "
+                "units (column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
     have = {r[0] for r in con.execute(
         "select column_name from duckdb_columns() where table_name = 'kpis'").fetchall()}
     for s in scenarios:
-        for k in s.kpis:
-            if k.column not in have:
-                kind = "varchar" if k.unit in ("string", "evaluation_object_kind") else "double"
-                con.execute(f"alter table kpis add column {k.column} {kind}")
-                con.execute(f"comment on column kpis.{k.column} is "
-                            + db._quote(f"{k.name} ({k.unit}): {k.description}"))
-                have.add(k.column)
+        for column, (unit, doc) in _metric_columns(s).items():
+            if column not in have:
+                kind = "varchar" if unit in ("string", "evaluation_object_kind") else "double"
+                con.execute(f"alter table kpis add column {column} {kind}")
+                con.execute(f"comment on column kpis.{column} is " + db._quote(doc))
+                have.add(column)
 
 
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
@@ -243,7 +251,7 @@ def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str,
         materialise(con, "_kpi", rel, values)
         metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
-                          *[pl.col(k.column) for k in s.kpis])
+                          *[pl.col(c) for c in _metric_columns(s)])
     if len(s.phases) == 1:
         phases = matches.select("match_id", "scenario", pl.lit(1, pl.Int64).alias("phase_index"),
                                 pl.lit(s.phases[0].name).alias("phase"),

@@ -87,7 +87,7 @@ def test_parquet_missing_column(tmp_path):
     pl.DataFrame({"drive_id": ["d"], "actor_id": ["a"], "kind": ["vehicle"], "t_s": [0.0], "x": [1.0],
                   "y_m": [0.0]}).write_parquet(path)
     with pytest.raises(InputError) as e:
-        read_parquet(path)
+        list(read_parquet(path))
     assert message(e) == (f"{path}: missing column 'x_m'. Did you mean 'x'?\n\n"
                           "Hint: tracks need drive_id, actor_id, kind, t_s, x_m, y_m; see docs/tables.md.")
 
@@ -97,7 +97,7 @@ def test_parquet_text_in_a_numeric_column(tmp_path):
     pl.DataFrame({"drive_id": ["d"], "actor_id": ["a"], "kind": ["vehicle"], "t_s": [0.0], "x_m": ["1.0"],
                   "y_m": [0.0]}).write_parquet(path)
     with pytest.raises(InputError) as e:
-        read_parquet(path)
+        list(read_parquet(path))
     assert message(e) == (f"{path}: column 'x_m' is String, not a number.\n\n"
                           "Hint: write x_m as a float in the unit its name says.")
 

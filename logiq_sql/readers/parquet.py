@@ -12,6 +12,7 @@ Required track columns: drive_id, actor_id, kind, t_s, x_m, y_m. Optional: is_eg
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import polars as pl
@@ -53,64 +54,77 @@ def _check_columns(frame: pl.DataFrame, table: schema.Table, required: tuple[str
         raise InputError(f"{path}: a column has the wrong type ({exc}).\n\nHint: see docs/tables.md.") from None
 
 
-def read_parquet(path: str | Path) -> list[DriveData]:
+DRIVES_PER_CHUNK = 200  # drives read from the file at a time: memory stays bounded on large files
+
+
+def _schema(path: Path) -> dict[str, pl.DataType]:
+    try:
+        return dict(pl.read_parquet_schema(path))
+    except Exception as exc:  # polars raises several types for corrupt files
+        raise InputError(f"{path}: not a readable Parquet file ({type(exc).__name__}: {exc}).") from None
+
+
+def read_parquet(path: str | Path) -> Iterator[DriveData]:
+    """Drives of a canonical Parquet file or folder, read a few hundred drives at a time."""
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     tracks_file = path / "tracks.parquet" if path.is_dir() else path
-    raw = _read(tracks_file)
-    unknown = [c for c in raw.columns if c not in schema.TRACKS.column_names]
+    columns = _schema(tracks_file)
+    unknown = [c for c in columns if c not in schema.TRACKS.column_names]
     for col in REQUIRED:
-        if col not in raw.columns:
+        if col not in columns:
             raise InputError(
                 f"{tracks_file}: missing column '{col}'.{did_you_mean(col, unknown, cutoff=0.5)}\n\n"
                 f"Hint: tracks need {', '.join(REQUIRED)}; see docs/tables.md."
             )
     for col in _NUMERIC:
-        if col in raw.columns and not raw.schema[col].is_numeric():
+        if col in columns and not columns[col].is_numeric():
             raise InputError(
-                f"{tracks_file}: column '{col}' is {raw.schema[col]}, not a number.\n\n"
+                f"{tracks_file}: column '{col}' is {columns[col]}, not a number.\n\n"
                 f"Hint: write {col} as a float in the unit its name says."
             )
     drives_meta: dict[str, dict] = {}
     if path.is_dir() and (folder / "drives.parquet").exists():
-        drives_meta = {r["drive_id"]: r for r in _read(folder / "drives.parquet").to_dicts()}
+        drives_meta = {str(r["drive_id"]): r for r in _read(folder / "drives.parquet").to_dicts()}
     maps = {t.name: _check_columns(_read(folder / f"{t.name}.parquet"), t,
                                    tuple(c.name for c in t.columns if not c.nullable), folder / f"{t.name}.parquet")
             for t in (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)
             if path.is_dir() and (folder / f"{t.name}.parquet").exists()}
 
-    out = []
-    for (drive_id,), rows in raw.group_by("drive_id", maintain_order=True):
-        meta = drives_meta.get(str(drive_id), {})
-        if not rows["t_s"].is_finite().all():
-            dt = None
-        else:
-            steps = rows.select(pl.col("t_s").unique().sort().diff().drop_nulls())["t_s"]
-            dt = meta.get("dt_s") or (float(steps.median()) if len(steps) else 0.1)
-        if not dt or dt <= 0:
-            dt = 0.1
-        rows = rows.with_columns(pl.col("drive_id").cast(pl.String), pl.col("actor_id").cast(pl.String))
-        if "frame" not in rows.columns:
-            rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64))
-        if "is_ego" not in rows.columns:
-            rows = rows.with_columns(is_ego=pl.lit(False))
-        tracks = _check_columns(rows, schema.TRACKS, REQUIRED, tracks_file)
-        egos = tracks.filter(pl.col("is_ego"))["actor_id"].unique().to_list()
-        if len(egos) > 1:
-            raise InputError(f"{tracks_file}: drive '{drive_id}' has {len(egos)} actors with is_ego = true "
-                             f"({', '.join(sorted(egos)[:5])}); a drive has at most one recorded ego.")
-        map_id = meta.get("map_id")
-        sel = (lambda t: maps[t].filter(pl.col("map_id") == map_id)) if map_id else None
-        drive = DriveData(
-            drive_id=str(drive_id), source_format="parquet", source_path=str(tracks_file), dt_s=dt,
-            tracks=tracks, map_id=map_id, ego_actor_id=egos[0] if egos else meta.get("ego_actor_id"),
-            rows_read=rows.height, attribution=meta.get("attribution"),
-        )
-        if sel is not None:
-            for name in ("lanes", "lane_successors", "junctions", "traffic_lights"):
-                if name in maps:
-                    setattr(drive, name, sel(name))
-        if "traffic_light_states" in maps:
-            drive.traffic_light_states = maps["traffic_light_states"].filter(pl.col("drive_id") == str(drive_id))
-        out.append(drive)
-    return out
+    lazy = pl.scan_parquet(tracks_file).with_columns(pl.col("drive_id").cast(pl.String),
+                                                     pl.col("actor_id").cast(pl.String))
+    drive_ids = lazy.select(pl.col("drive_id").unique(maintain_order=True)).collect()["drive_id"].to_list()
+    for start in range(0, len(drive_ids), DRIVES_PER_CHUNK):
+        chunk = lazy.filter(pl.col("drive_id").is_in(drive_ids[start:start + DRIVES_PER_CHUNK])).collect()
+        for (drive_id,), rows in chunk.group_by("drive_id", maintain_order=True):
+            yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), maps, tracks_file)
+
+
+def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.DataFrame], tracks_file: Path) -> DriveData:
+    dt = meta.get("dt_s")
+    if not dt:
+        steps = rows.select(pl.col("t_s").filter(pl.col("t_s").is_finite()).unique().sort().diff().drop_nulls())
+        dt = float(steps["t_s"].median()) if steps.height else None
+    dt = dt if dt and dt > 0 else 0.1
+    if "frame" not in rows.columns:
+        rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64))
+    if "is_ego" not in rows.columns:
+        rows = rows.with_columns(is_ego=pl.lit(False))
+    tracks = _check_columns(rows, schema.TRACKS, REQUIRED, tracks_file)
+    map_id = meta.get("map_id")
+    drive = DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file), dt_s=dt,
+                      tracks=tracks, map_id=map_id, rows_read=rows.height, attribution=meta.get("attribution"))
+    egos = tracks.filter(pl.col("is_ego"))["actor_id"].unique().sort().to_list()
+    if len(egos) > 1:
+        drive.tracks = tracks.clear()
+        drive.reject_reason = (f"{tracks_file}: drive '{drive_id}' has {len(egos)} actors with is_ego = true "
+                               f"({', '.join(egos[:5])}); a drive has at most one recorded ego.")
+        return drive
+    drive.ego_actor_id = egos[0] if egos else meta.get("ego_actor_id")
+    if map_id:
+        for name in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+            if name in maps:
+                setattr(drive, name, maps[name].filter(pl.col("map_id") == map_id))
+    if "traffic_light_states" in maps:
+        drive.traffic_light_states = maps["traffic_light_states"].filter(pl.col("drive_id") == drive_id)
+    return drive
