@@ -185,8 +185,9 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     con.execute(DRIVES_VIEW)
     con.execute("comment on view drives is " + _quote(
         "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
-    for col, doc in DRIVES_DOC.items():
-        con.execute(f"comment on column drives.{col} is {_quote(doc)}")
+    inherited = {c.name: c.doc for c in schema.DRIVE_INPUTS.columns}
+    for (col,) in con.execute("select column_name from duckdb_columns() where table_name = 'drives'").fetchall():
+        con.execute(f"comment on column drives.{col} is {_quote(DRIVES_DOC.get(col) or inherited[col])}")
     return con
 
 
@@ -201,7 +202,7 @@ def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> N
 
 
 def docs_markdown() -> str:
-    """The tables as a markdown page (docs/tables.md is generated from this)."""
+    """The tables as a markdown page (docs/tables.md is generated from this by `make docs`)."""
     out = ["# Tables in the logiq_sql DuckDB file", "",
            "Generated from `logiq_sql/schema.py` and `logiq_sql/db.py` (`make docs`). Every column also carries "
            "this text as a DuckDB comment: `select * from duckdb_columns() where comment is not null`.", ""]
@@ -209,4 +210,23 @@ def docs_markdown() -> str:
         out += [f"## `{table.name}`", "", table.doc, "", "| column | type | meaning |", "|---|---|---|"]
         out += [f"| `{c.name}` | {_DUCK_TYPES[c.dtype].lower()} | {c.doc} |" for c in table.columns]
         out.append("")
+    out += ["## `kpis`", "",
+            "One row per match: `match_id`, `scenario`, then every KPI and sampled coverage value of the scenarios "
+            "in `scenarios/`, in the spec's units (the suffix); NULL where a scenario does not record it or the "
+            "value is undefined. Columns are added as scenarios are run.", "",
+            "| column | unit | meaning |", "|---|---|---|"]
+    from logiq_sql.match import _metric_columns
+    from logiq_sql.scenario import list_scenarios
+
+    seen: set[str] = set()
+    for s in list_scenarios():
+        for column, (unit, doc) in _metric_columns(s).items():
+            if column not in seen:
+                seen.add(column)
+                out.append(f"| `{column}` | {unit} | {doc} |")
+    out += ["", "## `relations` and `ego_lanes`", "",
+            "Kept from the last match run of each drive, for analysts: see docs/semantics.md for every column "
+            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`).", "",
+            "## `drives` (view)", "",
+            "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
     return "\n".join(out)
