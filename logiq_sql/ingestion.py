@@ -80,7 +80,8 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
                         _count(summary, write_drives(con, batch))
                         batch = []
             except LogiqError as exc:
-                _record_rejected(con, fmt, path, str(exc))
+                # the file could not be read: one rejected drive named after it
+                _reject(con, DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()), str(exc))
                 summary.rejected += 1
                 if progress:
                     progress(f"[{i}/{len(files)}] {path.name}: rejected: {exc}")
@@ -101,16 +102,6 @@ def _count(summary: IngestSummary, written: list[tuple[DriveData, int]]) -> None
             summary.rows_rejected += (drive.rows_read or kept) - kept
         else:
             summary.rejected += 1
-
-
-def _record_rejected(con: duckdb.DuckDBPyConnection, fmt: str, path: Path, reason: str) -> None:
-    drive_id = path.name.split(".")[0]
-    con.execute("delete from drive_inputs where drive_id = $drive_id", {"drive_id": drive_id})
-    db.insert(con, "drive_inputs", pl.DataFrame([{
-        "drive_id": drive_id, "source_format": fmt, "source_path": str(path), "map_id": None, "dt_s": None,
-        "ego_actor_id": None, "rows_read": 0, "rows_rejected": 0, "status": "rejected",
-        "reject_reason": reason, "attribution": None,
-    }], schema=schema.DRIVE_INPUTS.polars_schema))
 
 
 def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
@@ -174,7 +165,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             if tracks.is_empty():
                 raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows.")
         except InputError as exc:
-            _record_rejected_drive(con, drive, str(exc))
+            _reject(con, drive, str(exc))
             written.append((drive, 0))
             continue
         reason = "; ".join(([drive.reject_reason] if drive.reject_reason else []) + reasons) or None
@@ -221,12 +212,14 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     return written
 
 
-def _record_rejected_drive(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
-    con.execute("delete from drive_inputs where drive_id = $d", {"d": drive.drive_id})
+def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
+    """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays."""
+    for table in ("tracks", "track_lanes", "traffic_light_states", "drive_inputs"):
+        con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+    rows = drive.rows_read or drive.tracks.height
     db.insert(con, "drive_inputs", pl.DataFrame([{
         "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
         "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
-        "ego_actor_id": drive.ego_actor_id, "rows_read": drive.rows_read or drive.tracks.height,
-        "rows_rejected": drive.rows_read or drive.tracks.height, "status": "rejected",
+        "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
         "reject_reason": reason, "attribution": drive.attribution,
     }], schema=schema.DRIVE_INPUTS.polars_schema))
