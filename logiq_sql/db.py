@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 
 import duckdb
 import polars as pl
 
 from logiq_sql import schema
+from logiq_sql.errors import LogiqError
 from logiq_sql.schema import Column, Table, _c
 
 S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
@@ -173,13 +176,25 @@ def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Colu
         con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")
 
 
+MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
+DEFAULT_MEMORY_LIMIT = "4GB"  # DuckDB spills to <file>.tmp beyond this instead of growing
+
+
+def memory_limit() -> str:
+    value = os.environ.get(MEMORY_LIMIT_ENV, DEFAULT_MEMORY_LIMIT).strip()
+    if not re.fullmatch(r"\d+(\.\d+)?\s*(KB|MB|GB|TB|KiB|MiB|GiB|TiB)", value):
+        raise LogiqError(f"{MEMORY_LIMIT_ENV}={value!r}: write a size such as 4GB or 512MiB.")
+    return value
+
+
 def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnection:
     """Open (and on first use create) a logiq_sql DuckDB file with every table and view."""
     path = Path(path)
+    config = {"memory_limit": memory_limit()}
     if read_only:
-        return duckdb.connect(str(path), read_only=True)
+        return duckdb.connect(str(path), read_only=True, config=config)
     path.parent.mkdir(parents=True, exist_ok=True)
-    con = duckdb.connect(str(path))
+    con = duckdb.connect(str(path), config=config)
     for table in TABLES:
         create_table(con, table)
     con.execute(DRIVES_VIEW)

@@ -28,6 +28,7 @@ from logiq_sql.scenario import CoverageItem, Scenario, list_scenarios, load_scen
 from logiq_sql.sql import materialise, render_steps
 
 DEFAULT_RELATION_RANGE = "150m"
+OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
 RELATION_STEPS = (
     ("actor_lanes", "relations/actor_lanes.sql"),
@@ -105,6 +106,7 @@ def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> 
     """Every value a step of scenario ``s`` may bind."""
     return {
         **s.bindings(), **ego, "relation_range_m": relation_range_m,
+        "object_relation_range_m": min(relation_range_m, OBJECT_RELATION_RANGE_M),
         "lane_calculation_tolerance_length_m": _lane_tolerance(s),
         "scenario": s.name, "scenario_version": s.version, "params_hash": s.params_hash(),
     }
@@ -215,7 +217,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             materialise(con, "egos", "relations/egos.sql", shared)
             for table, rel in RELATION_STEPS:
                 materialise(con, table, rel, shared)
-            say(f"relations: {con.execute('select count(*) from relations').fetchone()[0]:,} ego-actor rows "
+            say(f"relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
             for s in group:
                 results.append(_run_scenario(con, s, run_values(s, ego_values, range_m)))
@@ -267,7 +269,7 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
     con.execute("begin transaction")
     try:
         # the run's temp table shadows the stored one of the same name: name the file's catalog
-        stored = '"' + con.execute("select current_database()").fetchone()[0].replace('"', '""') + '".main'
+        stored = '"' + con.execute("select current_database()").fetchall()[0][0].replace('"', '""') + '".main'
         for table in PERSISTED:
             con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")

@@ -112,5 +112,5 @@ def test_rerun_is_idempotent(real_db, default_run):
     again = match(real_db)
     assert again.matches.sort("match_id").equals(default_run.matches.sort("match_id"))
     with duckdb.connect(str(real_db), read_only=True) as con:
-        dupes = con.execute("select count(*) - count(distinct match_id) from matches").fetchone()[0]
+        dupes = con.execute("select count(*) - count(distinct match_id) from matches").fetchall()[0][0]
     assert dupes == 0

@@ -1,7 +1,11 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
 -- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lanes, lane_successors
--- params: $relation_range_m
+-- params: $relation_range_m, $object_relation_range_m
+--
+-- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
+-- object_relation_range apart for every other kind (people, cyclists, cones): close-object scenarios look
+-- within metres, lane-following ones up to a 5 s headway.
 --
 -- Geometry in the ego frame (x forward along the ego heading, y to the ego's left), boxes from
 -- length_m/width_m around the centre:
@@ -57,7 +61,11 @@ pairs as (
     inner join tracks as a
         on e.drive_id = a.drive_id and e.frame = a.frame and e.actor_id <> a.actor_id
     where (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m)
-        <= $relation_range_m * $relation_range_m
+        <= case
+            when a.kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
+                then $relation_range_m * $relation_range_m
+            else $object_relation_range_m * $object_relation_range_m
+        end
 ),
 
 rotated as (
