@@ -275,13 +275,12 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
         for matches, phases, kpis, samples, buckets, s, egos in results:
-            for table in ("matches", "match_phases", "kpis", "coverage_samples"):
-                con.execute(
-                    f"delete from {table} where scenario = $s and match_id in "
-                    "(select match_id from matches where scenario = $s and drive_id in "
-                    "(select drive_id from run_drives))" if table != "matches" else
-                    "delete from matches where scenario = $s and drive_id in (select drive_id from run_drives)",
-                    {"s": s.name})
+            # rows that hang off the matches first, then the matches themselves
+            for table in ("match_phases", "kpis", "coverage_samples"):
+                con.execute(f"delete from {table} where scenario = $s and match_id in (select match_id from matches "
+                            "where scenario = $s and drive_id in (select drive_id from run_drives))", {"s": s.name})
+            con.execute("delete from matches where scenario = $s and drive_id in (select drive_id from run_drives)",
+                        {"s": s.name})
             con.execute("delete from coverage_buckets where scenario = $s", {"s": s.name})
             con.execute("delete from drive_scenarios where scenario = $s and drive_id in "
                         "(select drive_id from run_drives)", {"s": s.name})

@@ -108,9 +108,32 @@ def test_coverage_counts_every_match_once_per_item(default_run):
     assert buckets.height == 16  # [0..160) every 10 mph, empty buckets included
 
 
+def _dependent_rows(db) -> dict[str, tuple[int, int]]:
+    """(rows, rows whose match is gone or duplicated) of every table that hangs off matches."""
+    with duckdb.connect(str(db), read_only=True) as con:
+        out = {}
+        for table, key in (("matches", "match_id"), ("kpis", "match_id"), ("match_phases", "match_id, phase_index"),
+                           ("coverage_samples", "match_id, item")):
+            rows, distinct, orphans = con.execute(
+                f"select count(*), count(distinct ({key})), count(*) filter (where match_id not in "
+                f"(select match_id from matches)) from {table}").fetchall()[0]
+            out[table] = (rows, rows - distinct + orphans)
+    return out
+
+
 def test_rerun_is_idempotent(real_db, default_run):
+    match(real_db)  # earlier tests ran other parameters: start from the defaults
+    before = _dependent_rows(real_db)
     again = match(real_db)
     assert again.matches.sort("match_id").equals(default_run.matches.sort("match_id"))
-    with duckdb.connect(str(real_db), read_only=True) as con:
-        dupes = con.execute("select count(*) - count(distinct match_id) from matches").fetchall()[0][0]
-    assert dupes == 0
+    assert _dependent_rows(real_db) == before
+    assert all(bad == 0 for _, bad in before.values())
+
+
+def test_a_changed_parameter_replaces_the_matches_it_produced(real_db, default_run):
+    changed = match(real_db, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3s"})
+    assert 0 < changed.matches.height < default_run.matches.filter(pl.col("scenario") == "follower_vehicle").height
+    assert changed.matches["params_hash"].n_unique() == 1
+    after = _dependent_rows(real_db)
+    assert all(bad == 0 for _, bad in after.values())
+    match(real_db, scenarios=["follower_vehicle"])  # back to the defaults for the other tests
