@@ -22,9 +22,9 @@ import duckdb
 import polars as pl
 
 from logiq_sql import db, units
-from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, DRIVE_SCENARIOS, MATCH_PHASES, MATCHES
+from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.errors import ScenarioError, did_you_mean
-from logiq_sql.scenario import CoverageItem, Scenario, list_scenarios, load_scenario
+from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import materialise, render_steps
 
 DEFAULT_RELATION_RANGE = "150m"

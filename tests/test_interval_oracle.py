@@ -65,7 +65,7 @@ def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s):
     db = make_db(tmp_path_factory.mktemp("f"), drive(ok, present, "vehicle", 20.0, 90.0, lateral=False))
     got = intervals(match(db, scenarios=["follower_vehicle"], ego="recorded",
                           overrides={"min_scenario_duration": f"{min_s}s"}).matches, "follower_vehicle")
-    expected = oracle_islands([o and p for o, p in zip(ok, present)], min_s, None)
+    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=False)], min_s, None)
     assert [(a, b) for _, _, a, b in got] == expected
 
 
@@ -77,5 +77,5 @@ def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s):
     db = make_db(tmp_path_factory.mktemp("c"), drive(ok, present, "cyclist", 4.0, 12.0, lateral=True))
     got = intervals(match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded",
                           overrides={"max_phase_duration": f"{max_s}s"}).matches, "cyclist_close_to_moving_sut")
-    expected = oracle_islands([o and p for o, p in zip(ok, present)], None, max_s)
+    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=False)], None, max_s)
     assert [(a, b) for _, _, a, b in got] == expected

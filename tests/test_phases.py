@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from logiq_sql.match import match
-from tests.helpers import LANE_W, TWO_LANES, Y1, Y2, actor, intervals, lane, make_db, times
+from tests.helpers import LANE_W, Y1, Y2, actor, intervals, lane, make_db, times
 
 FOLLOWER = "follower_vehicle"
 CYCLIST = "cyclist_close_to_moving_sut"

@@ -353,7 +353,7 @@ def light_state(durations: list[int], colours: list[str], offset: int, frame: in
     if total <= 0:
         return "unknown"
     p = (frame - offset) % total
-    for duration, colour in zip(durations, colours):
+    for duration, colour in zip(durations, colours, strict=False):
         if p < duration:
             return colour
         p -= duration
