@@ -29,7 +29,7 @@ demo: venv
 	@echo; echo "Cyclist matches (nuScenes); the closest moving cyclist of the bundled scenes passes 5.2 m away:"
 	@$(BIN)/logiq-sql match --db $(DEMO_DB) --scenario cyclist_close_to_moving_sut --set max_distance_from_cyclist=6m --quiet
 	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/"
-	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, sum(matches) as matches from drives group by 1"
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, cast(sum(matches) as bigint) as matches from drives group by 1"
 
 test: venv
 	$(BIN)/python -m pytest -q

@@ -44,6 +44,14 @@ def test_follower_must_be_behind_and_in_the_same_lane(tmp_path):
     assert run(db, FOLLOWER) == []
 
 
+def test_an_actor_alongside_or_overlapping_the_ego_is_not_following(tmp_path):
+    t = times(3.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("overlap", t, 97 + 10 * t, Y1),        # its front is 1.5 m into the ego's rear
+                            actor("touching", t, 95.4 + 10 * t, Y1)])    # 0.1 m gap: following
+    assert [m[1] for m in run(db, FOLLOWER)] == ["touching"]
+
+
 def test_follower_shorter_than_min_scenario_duration_is_not_a_match(tmp_path):
     t = times(3.0)
     ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)

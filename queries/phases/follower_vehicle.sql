@@ -7,7 +7,8 @@
 --
 -- Per frame, all of:
 --   ego      is in a lane; the phase never spans a lane change of the ego (islands are cut per lane run)
---   actor    is of one of the kinds, behind the ego (dx < 0), with a time headway (gap / actor speed) in
+--   actor    is of one of the kinds, entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor
+--            alongside, or overlapping the ego, is not following it), with a time headway (gap / actor speed) in
 --            [min_distance_from_sut_in_time_units, max_distance_from_sut_in_time_units]
 --   lane     the actor's lane is the ego's lane or its direct predecessor/successor (same_lane), or a lane the
 --            ego drove in during the last same_road_limit seconds of the current lane run (same road)
@@ -47,6 +48,7 @@ following as (
     where el.lane_id is not null
         and instr($kinds_csv, ',' || r.actor_kind || ',') > 0
         and r.dx_m < 0
+        and r.lon_gap_m > 0
         and r.time_headway_s >= $min_distance_from_sut_in_time_units_s
         and r.time_headway_s <= $max_distance_from_sut_in_time_units_s
         and (r.same_lane or road.lane_id is not null)
