@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 import sys
 
 from logiq_sql.errors import LogiqError
@@ -40,7 +41,7 @@ def cmd_match(args: argparse.Namespace) -> int:
                    progress=_say(args.quiet))
     print(result.summary())
     if args.out:
-        print(f"Parquet written to {args.out}/")
+        print(f"Parquet written to {Path(args.out).resolve()}")
     return 0
 
 
