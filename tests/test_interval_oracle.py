@@ -57,25 +57,30 @@ FRAMES = st.integers(min_value=2, max_value=60).flatmap(
                             lambda xs: [x or (i % 7 != 3) for i, x in enumerate(xs)])))
 
 
+def matched_vs_oracle(tmp, frames, scenario, tracks_args, override, min_s, max_s):
+    """(intervals the SQL found, intervals the oracle expects) for one random case."""
+    ok, present = frames
+    db = make_db(tmp, drive(ok, present, *tracks_args))
+    got = intervals(match(db, scenarios=[scenario], ego="recorded", overrides=override).matches, scenario)
+    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=True)], min_s, max_s)
+    return [(a, b) for _, _, a, b in got], expected
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(frames=FRAMES, min_s=st.sampled_from([0.0, 0.5, 1.0, 2.0]))
 def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s):
-    ok, present = frames
     # centre offset 20 m -> gap 15.5 m -> 1.55 s; 90 m -> gap 85.5 m -> 8.55 s (outside [0, 5] s)
-    db = make_db(tmp_path_factory.mktemp("f"), drive(ok, present, "vehicle", 20.0, 90.0, lateral=False))
-    got = intervals(match(db, scenarios=["follower_vehicle"], ego="recorded",
-                          overrides={"min_scenario_duration": f"{min_s}s"}).matches, "follower_vehicle")
-    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=False)], min_s, None)
-    assert [(a, b) for _, _, a, b in got] == expected
+    got, expected = matched_vs_oracle(tmp_path_factory.mktemp("f"), frames, "follower_vehicle",
+                                      ("vehicle", 20.0, 90.0, False), {"min_scenario_duration": f"{min_s}s"},
+                                      min_s, None)
+    assert got == expected
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(frames=FRAMES, max_s=st.sampled_from([0.3, 1.0, 2.55]))
 def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s):
-    ok, present = frames
     # lateral centre offset 4 m -> box gap 2.2 m (inside [0, 5] m); 12 m -> 10.2 m (outside)
-    db = make_db(tmp_path_factory.mktemp("c"), drive(ok, present, "cyclist", 4.0, 12.0, lateral=True))
-    got = intervals(match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded",
-                          overrides={"max_phase_duration": f"{max_s}s"}).matches, "cyclist_close_to_moving_sut")
-    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=False)], None, max_s)
-    assert [(a, b) for _, _, a, b in got] == expected
+    got, expected = matched_vs_oracle(tmp_path_factory.mktemp("c"), frames, "cyclist_close_to_moving_sut",
+                                      ("cyclist", 4.0, 12.0, True), {"max_phase_duration": f"{max_s}s"},
+                                      None, max_s)
+    assert got == expected
