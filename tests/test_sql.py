@@ -7,7 +7,7 @@ import polars as pl
 import sqlglot
 
 from logiq_sql.lint import lint_sql, lint_tree
-from logiq_sql.match import match, render
+from logiq_sql.match import match, parse_ego, render, run_values, scenario_steps
 from logiq_sql.paths import data_dir
 from logiq_sql.scenario import list_scenarios
 from logiq_sql.sql import bind, placeholders
@@ -39,8 +39,6 @@ def test_every_query_transpiles_to_spark_with_named_markers():
 def test_every_scenario_parameter_reaches_its_sql():
     """Each query's $parameters are bound by the scenario (or the run); no parameter is declared and unused."""
     for s in list_scenarios():
-        from logiq_sql.match import parse_ego, run_values, scenario_steps
-
         values = run_values(s, parse_ego("auto"), 150.0)
         used = set()
         for _, rel in [*scenario_steps(s), *[(None, q) for q in s.kpi_queries]]:
