@@ -26,6 +26,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
+from logiq_sql import schema
 from logiq_sql.db import memory_limit
 from logiq_sql.ingestion import ingest
 from logiq_sql.match import match
@@ -68,7 +69,7 @@ def replicate(tables: dict[str, pl.DataFrame], rows: int, out: Path) -> int:
         "drive_id", "dt_s", "map_id", "ego_actor_id", "attribution")
     pl.concat([drives.with_columns(pl.col("drive_id") + f"~{k}") for k in range(copies)]).write_parquet(
         out / "drives.parquet")
-    for t in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+    for t in schema.MAP_TABLE_NAMES:
         tables[t].write_parquet(out / f"{t}.parquet")
     return copies * tracks.height
 

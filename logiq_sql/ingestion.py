@@ -19,16 +19,18 @@ from logiq_sql import db, schema
 from logiq_sql.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.readers.base import DriveData
 from logiq_sql.localise import locate
-from logiq_sql.paths import query_path
+from logiq_sql.sql import query_text
 
 
 FORMATS = ("commonroad", "scenarionet", "parquet")
 
 
+_SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
+
+
 def _reader(fmt: str) -> Callable[[Path], Iterable[DriveData]]:
     module = importlib.import_module(f"logiq_sql.readers.{fmt}")
     return getattr(module, f"read_{fmt}")
-_SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
 
 
 @dataclass
@@ -69,16 +71,18 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     con = db.connect(db_path)
     summary = IngestSummary()
     batch: list[DriveData] = []
+    batch_rows = 0
     try:
         for i, path in enumerate(files, 1):
             count = 0
             try:
                 for drive in reader(path):  # readers may stream: drives are written as batches fill up
                     batch.append(drive)
+                    batch_rows += drive.tracks.height
                     count += 1
-                    if sum(d.tracks.height for d in batch) >= BATCH_ROWS:
+                    if batch_rows >= BATCH_ROWS:
                         _count(summary, write_drives(con, batch))
-                        batch = []
+                        batch, batch_rows = [], 0
             except LogiqError as exc:
                 # the file could not be read: one rejected drive named after it
                 _reject(con, DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()), str(exc))
@@ -179,17 +183,17 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     try:
         con.register("_drive_ids", ids)
         con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
-        for table in ("tracks", "track_lanes", "traffic_light_states", "drive_inputs"):
+        for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-        for table in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+        for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         for drive in maps.values():
-            for table in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+            for table in schema.MAP_TABLE_NAMES:
                 db.insert(con, table, getattr(drive, table))
         for drive, *_ in accepted:
             db.insert(con, "traffic_light_states", drive.traffic_light_states)
         con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
-        con.execute("create or replace temp table _staged as " + query_path("staging/tracks.sql").read_text())
+        con.execute("create or replace temp table _staged as " + query_text("staging/tracks.sql"))
         con.unregister("tracks_raw")
         con.execute("insert into tracks select * from _staged")
         for map_id, drive in maps.items():
@@ -214,7 +218,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
     """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays."""
-    for table in ("tracks", "track_lanes", "traffic_light_states", "drive_inputs"):
+    for table in schema.DRIVE_TABLE_NAMES:
         con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
     rows = drive.rows_read or drive.tracks.height
     db.insert(con, "drive_inputs", pl.DataFrame([{

@@ -27,12 +27,9 @@ class LaneIndex:
         self.lines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
         shapely.prepare(self.polygons)  # prepared polygons make the within-distance and inside tests fast
         coords, owner = shapely.get_coordinates(self.lines, return_index=True)
-        step = np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)]
-        step[np.r_[True, owner[1:] != owner[:-1]]] = 0.0  # arc length restarts on each line
-        arc = np.zeros(len(coords))
+        cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
         starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-        cum = np.cumsum(step)
-        arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))
+        arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))  # restarts on each line
         self.span = float(arc.max() if len(arc) else 0.0) + 1.0
         self.key = arc + owner * self.span  # sorted: lane by lane, arc length within
         self.coords, self.owner = coords, owner

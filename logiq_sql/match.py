@@ -25,7 +25,7 @@ from logiq_sql import db, units
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
-from logiq_sql.sql import materialise, render_steps
+from logiq_sql.sql import materialise, query_text, render_steps
 
 DEFAULT_RELATION_RANGE = "150m"
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -297,17 +297,11 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
                 "drives": run_drives.height, "matches": matches.height,
             }], schema=db.MATCH_RUNS.polars_schema))
         con.execute("delete from coverage")
-        con.execute("insert into coverage select * from (" + _histogram_sql() + ")")
+        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
         raise
-
-
-def _histogram_sql() -> str:
-    from logiq_sql.sql import query_text
-
-    return query_text("coverage/histogram.sql")
 
 
 def _drive_status(con, run_drives: pl.DataFrame, matches: pl.DataFrame, egos: pl.DataFrame, s: Scenario):

@@ -151,6 +151,7 @@ TRAFFIC_LIGHT_STATES = Table(
 )
 
 MAP_TABLES = (LANES, LANE_SUCCESSORS, JUNCTIONS, TRAFFIC_LIGHTS)
+MAP_TABLE_NAMES = tuple(t.name for t in MAP_TABLES)
 ALL_INPUT_TABLES = (DRIVE_INPUTS, TRACKS, *MAP_TABLES, TRAFFIC_LIGHT_STATES)
 
 
@@ -179,3 +180,5 @@ TRACK_LANES = Table(
     ),
 )
 LOCALISATION_RANGE_M = 3.0
+# tables whose rows belong to one drive: replaced together when the drive is ingested again or rejected
+DRIVE_TABLE_NAMES = ("tracks", "track_lanes", "traffic_light_states", "drive_inputs")

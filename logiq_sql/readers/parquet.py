@@ -122,7 +122,7 @@ def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.Dat
         return drive
     drive.ego_actor_id = egos[0] if egos else meta.get("ego_actor_id")
     if map_id:
-        for name in ("lanes", "lane_successors", "junctions", "traffic_lights"):
+        for name in schema.MAP_TABLE_NAMES:
             if name in maps:
                 setattr(drive, name, maps[name].filter(pl.col("map_id") == map_id))
     if "traffic_light_states" in maps:
