@@ -192,9 +192,13 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     path = Path(path)
     config = {"memory_limit": memory_limit()}
     if read_only:
-        return duckdb.connect(str(path), read_only=True, config=config)
+        con = duckdb.connect(str(path), read_only=True, config=config)
+        con.execute("set enable_progress_bar = false")
+        return con
     path.parent.mkdir(parents=True, exist_ok=True)
     con = duckdb.connect(str(path), config=config)
+    # DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself
+    con.execute("set enable_progress_bar = false")
     for table in TABLES:
         create_table(con, table)
     con.execute(DRIVES_VIEW)
@@ -235,7 +239,7 @@ def docs_markdown() -> str:
 
     seen: set[str] = set()
     for s in list_scenarios():
-        for column, (unit, doc) in _metric_columns(s).items():
+        for column, (unit, _sql_type, doc) in _metric_columns(s).items():
             if column not in seen:
                 seen.add(column)
                 out.append(f"| `{column}` | {unit} | {doc} |")

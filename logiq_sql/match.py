@@ -31,6 +31,7 @@ DEFAULT_RELATION_RANGE = "150m"
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
 RELATION_STEPS = (
+    ("lane_neighbours", "relations/lane_neighbours.sql"),
     ("actor_lanes", "relations/actor_lanes.sql"),
     ("ego_lanes", "relations/ego_lanes.sql"),
     ("relations", "relations/relations.sql"),
@@ -102,10 +103,22 @@ def _lane_tolerance(s: Scenario) -> float:
     return float(p.value) if p is not None and p.value is not None else DEFAULT_LANE_TOLERANCE_M
 
 
+def _phase_limits(s: Scenario) -> dict[str, object]:
+    """``phase_<i>_min_duration_s`` / ``phase_<i>_max_duration_s`` for the match queries: the values of the
+    parameters each phase names as its limits (no minimum: 0; no maximum: NULL)."""
+    out: dict[str, object] = {}
+    for i, phase in enumerate(s.phases, 1):
+        lo = s.params[phase.min_duration].value if phase.min_duration else None
+        hi = s.params[phase.max_duration].value if phase.max_duration else None
+        out[f"phase_{i}_min_duration_s"] = 0.0 if lo is None else lo
+        out[f"phase_{i}_max_duration_s"] = hi
+    return out
+
+
 def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> dict[str, object]:
     """Every value a step of scenario ``s`` may bind."""
     return {
-        **s.bindings(), **ego, "relation_range_m": relation_range_m,
+        **s.bindings(), **_phase_limits(s), **ego, "relation_range_m": relation_range_m,
         "object_relation_range_m": min(relation_range_m, OBJECT_RELATION_RANGE_M),
         "lane_calculation_tolerance_length_m": _lane_tolerance(s),
         "scenario": s.name, "scenario_version": s.version, "params_hash": s.params_hash(),
@@ -159,12 +172,16 @@ def _coverage_samples(s: Scenario, metrics: pl.DataFrame) -> pl.DataFrame:
     return pl.concat(frames) if frames else pl.DataFrame(schema=COVERAGE_SAMPLES.polars_schema)
 
 
-def _metric_columns(s: Scenario) -> dict[str, tuple[str, str]]:
-    """Columns of ``kpis`` for a scenario: its KPIs, then its coverage samples -> (unit, description)."""
-    out = {k.column: (k.unit, f"{k.name} ({k.unit}): {k.description}") for k in s.kpis}
+TEXT_UNITS = ("string", "evaluation_object_kind")
+
+
+def _metric_columns(s: Scenario) -> dict[str, tuple[str, str, str]]:
+    """Columns of ``kpis`` for a scenario: its KPIs, then its coverage samples -> (unit, SQL type, description)."""
+    out = {k.column: (k.unit, "varchar" if k.unit in TEXT_UNITS else "double",
+                      f"{k.name} ({k.unit}): {k.description}") for k in s.kpis}
     for c in s.coverage:
-        out.setdefault(c.column, (c.unit, f"coverage item {c.name} ({c.unit}), sampled at the {c.sample}: "
-                                          f"{c.description}"))
+        out.setdefault(c.column, (c.unit, "varchar" if c.values else "double",
+                                  f"coverage item {c.name} ({c.unit}), sampled at the {c.sample}: {c.description}"))
     return out
 
 
@@ -175,10 +192,9 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
     have = {r[0] for r in con.execute(
         "select column_name from duckdb_columns() where table_name = 'kpis'").fetchall()}
     for s in scenarios:
-        for column, (unit, doc) in _metric_columns(s).items():
+        for column, (_unit, sql_type, doc) in _metric_columns(s).items():
             if column not in have:
-                kind = "varchar" if unit in ("string", "evaluation_object_kind") else "double"
-                con.execute(f"alter table kpis add column {column} {kind}")
+                con.execute(f"alter table kpis add column {column} {sql_type}")
                 con.execute(f"comment on column kpis.{column} is " + db._quote(doc))
                 have.add(column)
 
@@ -254,12 +270,12 @@ def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str,
         metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
                           *[pl.col(c) for c in _metric_columns(s)])
-    if len(s.phases) == 1:
-        phases = matches.select("match_id", "scenario", pl.lit(1, pl.Int64).alias("phase_index"),
-                                pl.lit(s.phases[0].name).alias("phase"),
-                                "start_frame", "end_frame", "start_s", "end_s")
-    else:
-        raise ScenarioError(f"{s.path}: scenarios with {len(s.phases)} phases are not supported yet.")
+    phases = pl.concat([
+        matches.select("match_id", "scenario", pl.lit(i, pl.Int64).alias("phase_index"),
+                       pl.lit(phase.name).alias("phase"),
+                       *[pl.col(f"p{i}_{c}").alias(c) for c in ("start_frame", "end_frame", "start_s", "end_s")])
+        for i, phase in enumerate(s.phases, 1)
+    ])
     egos = con.sql("select drive_id, count(*) as egos from egos group by drive_id").pl()
     return matches, phases, kpis, _coverage_samples(s, metrics), _coverage_buckets(s), s, egos
 

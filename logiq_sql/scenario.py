@@ -55,8 +55,12 @@ class Param:
 
 @dataclass(frozen=True)
 class Phase:
+    """A phase: its query, and the names of the time parameters that limit its duration (if any)."""
+
     name: str
     query: str
+    min_duration: str | None = None
+    max_duration: str | None = None
 
 
 @dataclass(frozen=True)
@@ -75,7 +79,7 @@ class CoverageItem:
     column: str
     unit: str
     description: str
-    sample: str  # "start" or "end" of the match interval
+    sample: str  # "start" / "end" of the match interval, or "<phase>.start" / "<phase>.end"
     lo: float | None = None
     hi: float | None = None
     every: float | None = None
@@ -209,11 +213,13 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
     for c in raw.get("coverage", []):
         coverage[c["name"]] = _coverage_item(c, f"{path} [[coverage]] {c.get('name')}")
 
-    phases = tuple(Phase(p["name"], p["query"]) for p in raw.get("phases", []))
+    phases = tuple(_phase(p, params, f"{path} [[phases]] {p.get('name')}") for p in raw.get("phases", []))
     abstract = bool(raw.get("abstract", False))
     match = raw.get("match", {}).get("query")
     if not abstract and (not phases or not match):
         raise ScenarioError(f"{path}: a concrete scenario needs [[phases]] and [match] query.")
+    if not abstract:
+        _check_samples(coverage.values(), phases, path)
     return Scenario(
         name=name, path=path, description=raw.get("description", ""), spec=raw.get("spec", ""),
         version=int(raw.get("version", 1)), abstract=abstract, lineage=tuple(lineage),
@@ -222,10 +228,29 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
     )
 
 
+def _phase(p: dict, params: dict[str, Param], where: str) -> Phase:
+    phase = Phase(p["name"], p["query"], p.get("min_duration"), p.get("max_duration"))
+    for limit in (phase.min_duration, phase.max_duration):
+        if limit is not None and (limit not in params or params[limit].type != "time"):
+            raise ScenarioError(f"{where}: duration limit '{limit}' must name a time parameter of the scenario."
+                                f"{did_you_mean(limit, list(params))}")
+    return phase
+
+
+def _check_samples(items, phases: tuple[Phase, ...], path: Path) -> None:
+    names = [p.name for p in phases]
+    for item in items:
+        phase = item.sample.rpartition(".")[0]
+        if phase and phase not in names:
+            raise ScenarioError(f"{path}: coverage item {item.name} is sampled at {item.sample!r}, but the "
+                                f"scenario has no phase '{phase}'.{did_you_mean(phase, names)}")
+
+
 def _coverage_item(c: dict, where: str) -> CoverageItem:
     sample = c.get("sample", "end")
-    if sample not in ("start", "end"):
-        raise ScenarioError(f"{where}: sample must be 'start' or 'end', not {sample!r}.")
+    if sample.rpartition(".")[2] not in ("start", "end"):
+        raise ScenarioError(f"{where}: sample must be 'start', 'end', '<phase>.start' or '<phase>.end', "
+                            f"not {sample!r}.")
     if "values" in c:
         return CoverageItem(c["name"], c["column"], c.get("unit", ""), c.get("description", ""), sample,
                             values=tuple(c["values"]))

@@ -55,22 +55,31 @@ def test_an_actor_alongside_or_overlapping_the_ego_is_not_following(tmp_path):
 def test_follower_shorter_than_min_scenario_duration_is_not_a_match(tmp_path):
     t = times(3.0)
     ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)
-    short = actor("f", t[:10], 80 + 10 * t[:10], Y1)   # 0.0 .. 0.9 s: 0.9 s long
-    exact = actor("g", t[:11], 60 + 10 * t[:11], Y1)   # 0.0 .. 1.0 s: exactly 1 s
-    db = make_db(tmp_path, [ego, short, exact])
-    assert run(db, FOLLOWER) == [("ego", "g", 0.0, 1.0)]
-    assert run(db, FOLLOWER, overrides={"min_scenario_duration": "0.9s"}) == [("ego", "f", 0.0, 0.9),
-                                                                             ("ego", "g", 0.0, 1.0)]
+    short = make_db(tmp_path / "short", [ego, actor("f", t[:10], 80 + 10 * t[:10], Y1)])   # 0.0 .. 0.9 s
+    exact = make_db(tmp_path / "exact", [ego, actor("g", t[:11], 80 + 10 * t[:11], Y1)])   # 0.0 .. 1.0 s
+    assert run(short, FOLLOWER) == []
+    assert run(exact, FOLLOWER) == [("ego", "g", 0.0, 1.0)]
+    assert run(short, FOLLOWER, overrides={"min_scenario_duration": "0.9s"}) == [("ego", "f", 0.0, 0.9)]
+
+
+def test_only_the_nearest_road_user_behind_follows_the_ego(tmp_path):
+    t = times(6.0)
+    # "near" is right behind the ego until it leaves the lane after 3 s; then "far" follows the ego
+    near_y = np.where(t <= 3.0, Y1, Y2)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("near", t, 85 + 10 * t, near_y), actor("far", t, 65 + 10 * t, Y1)])
+    assert run(db, FOLLOWER) == [("ego", "far", 3.1, 6.0), ("ego", "near", 0.0, 3.0)]
 
 
 def test_follower_kinds_filter(tmp_path):
     t = times(3.0)
-    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
-                            actor("truck", t, 80 + 10 * t, Y1, kind="truck", length=10.0),
-                            actor("bike", t, 85 + 10 * t, Y1, kind="cyclist", length=1.8, width=0.6)])
-    assert [m[1] for m in run(db, FOLLOWER)] == ["truck"]          # unset kinds: vehicle kinds only
-    assert run(db, FOLLOWER, overrides={"kinds": "vehicle"}) == []
-    assert [m[1] for m in run(db, FOLLOWER, overrides={"kinds": "cyclist,truck"})] == ["bike", "truck"]
+    ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)
+    truck = make_db(tmp_path / "truck", [ego, actor("truck", t, 80 + 10 * t, Y1, kind="truck", length=10.0)])
+    bike = make_db(tmp_path / "bike", [ego, actor("bike", t, 85 + 10 * t, Y1, kind="cyclist", length=1.8, width=0.6)])
+    assert [m[1] for m in run(truck, FOLLOWER)] == ["truck"]          # unset kinds: vehicle kinds only
+    assert run(truck, FOLLOWER, overrides={"kinds": "vehicle"}) == []
+    assert run(bike, FOLLOWER) == []
+    assert [m[1] for m in run(bike, FOLLOWER, overrides={"kinds": "cyclist,truck"})] == ["bike"]
 
 
 def test_ego_lane_change_ends_the_phase(tmp_path):

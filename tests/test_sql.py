@@ -43,6 +43,10 @@ def test_every_scenario_parameter_reaches_its_sql():
         used = set()
         for _, rel in [*scenario_steps(s), *[(None, q) for q in s.kpi_queries]]:
             used |= set(bind(rel, values))
+        # a phase's duration limits reach the match query as phase_<i>_min/max_duration_s
+        used |= {s.params[name].sql_name for i, phase in enumerate(s.phases, 1)
+                 for name, alias in ((phase.min_duration, f"phase_{i}_min_duration_s"),
+                                     (phase.max_duration, f"phase_{i}_max_duration_s")) if name and alias in used}
         declared = {p.sql_name for p in s.params.values()}
         assert declared <= used, (s.name, declared - used)
 

@@ -9,5 +9,9 @@ select
     start_frame,
     end_frame,
     start_s,
-    end_s
+    end_s,
+    start_frame as p1_start_frame,
+    end_frame as p1_end_frame,
+    start_s as p1_start_s,
+    end_s as p1_end_s
 from phase_1

@@ -10,6 +10,8 @@
 --   actor    is of one of the kinds, entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor
 --            alongside, or overlapping the ego, is not following it), with a time headway (gap / actor speed) in
 --            [min_distance_from_sut_in_time_units, max_distance_from_sut_in_time_units]
+--   nearest  it is the nearest road user (any kind) behind the ego in that lane: the one that follows the ego;
+--            a car behind it follows it, not the ego
 --   lane     the actor's lane is the ego's lane or its direct predecessor/successor (same_lane), or a lane the
 --            ego drove in during the last same_road_limit seconds of the current lane run (same road)
 -- "During the entire phase": every frame of the island satisfies all of it.
@@ -36,7 +38,11 @@ following as (
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run
+        r.actor_kind,
+        r.time_headway_s,
+        el.lane_run,
+        -- the follower is the road user right behind the ego: nobody else in the lane between them
+        row_number() over (partition by r.drive_id, r.ego_id, r.frame order by r.lon_gap_m, r.actor_id) as rank_behind
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
@@ -46,11 +52,8 @@ following as (
         and road.first_s <= r.t_s
         and road.last_s >= r.t_s - $same_road_limit_s
     where el.lane_id is not null
-        and instr($kinds_csv, ',' || r.actor_kind || ',') > 0
         and r.dx_m < 0
         and r.lon_gap_m > 0
-        and r.time_headway_s >= $min_distance_from_sut_in_time_units_s
-        and r.time_headway_s <= $max_distance_from_sut_in_time_units_s
         and (r.same_lane or road.lane_id is not null)
 ),
 
@@ -59,6 +62,10 @@ islands as (
         *,
         frame - row_number() over (partition by drive_id, ego_id, actor_id, lane_run order by frame) as island
     from following
+    where rank_behind = 1
+        and instr($kinds_csv, ',' || actor_kind || ',') > 0
+        and time_headway_s >= $min_distance_from_sut_in_time_units_s
+        and time_headway_s <= $max_distance_from_sut_in_time_units_s
 )
 
 select

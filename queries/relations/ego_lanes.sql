@@ -1,12 +1,17 @@
 -- relations: ego_lanes
 -- grain: one row per (drive_id, ego_id, frame): the ego's lane and its lane run
--- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lanes
+-- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lanes, lane_successors, lane_neighbours
 -- params: $lane_calculation_tolerance_length_m
 --
--- A lane run is a stretch the ego drives in one lane. It ends at a lane change: the ego's best lane
--- becomes the left or right same-direction neighbour of the lane it had, and the ego has moved more than
--- lane_calculation_tolerance_length away from that old lane (the keep_lane tolerance). Moving on to a
--- successor lane (a new road segment, a lane inside a junction) is not a lane change.
+-- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
+--   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
+--      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition;
+--   2. the change happens at the first frame after the transition at which the ego is in a lane and more
+--      than lane_calculation_tolerance_length away from the old lane and from the lanes that continue it
+--      (its successors and predecessors): the keep_lane tolerance. The best lane may meanwhile have moved on
+--      to the next segment, so a lane change across a segment boundary still counts;
+--   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change.
+-- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
 with
 
 ego_rows as (
@@ -52,39 +57,98 @@ runs_with_previous as (
     from runs
 ),
 
-neighbour_runs as (
+transitions as (
+    -- the ego's best lane becomes a lane beside the one it had: a lane change may be under way
     select
-        r.*,
-        case when old.left_lane_id = r.lane_id then 'left' else 'right' end as side
+        r.drive_id,
+        r.ego_id,
+        d.map_id,
+        r.run_start_frame as transition_frame,
+        r.previous_lane_id as from_lane_id,
+        n.side
     from runs_with_previous as r
     inner join drive_inputs as d
         on r.drive_id = d.drive_id
-    inner join lanes as old
-        on d.map_id = old.map_id and r.previous_lane_id = old.lane_id
+    inner join lane_neighbours as n
+        on d.map_id = n.map_id and r.previous_lane_id = n.lane_id and r.lane_id = n.near_lane_id
     where r.previous_end_frame = r.run_start_frame - 1
-        and (
-            (old.left_lane_id = r.lane_id and old.left_same_direction)
-            or (old.right_lane_id = r.lane_id and old.right_same_direction)
-        )
+),
+
+pending as (
+    -- every ego frame with the last transition before it (over segment boundaries the best lane's id may
+    -- change again without a new transition)
+    select
+        e.drive_id,
+        e.ego_id,
+        e.frame,
+        e.lane_id,
+        last_value(tr.map_id ignore nulls) over w as map_id,
+        last_value(tr.transition_frame ignore nulls) over w as transition_frame,
+        last_value(tr.from_lane_id ignore nulls) over w as from_lane_id,
+        last_value(tr.side ignore nulls) over w as side
+    from ego_rows as e
+    left join transitions as tr
+        on e.drive_id = tr.drive_id and e.ego_id = tr.ego_id and e.frame = tr.transition_frame
+    window w as (partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row)
+),
+
+lane_line as (
+    -- a lane and the lanes that continue it: its direct successors and predecessors
+    select map_id, lane_id, lane_id as line_lane_id from lanes
+    union all
+    select map_id, lane_id, successor_id as line_lane_id from lane_successors
+    union all
+    select map_id, successor_id as lane_id, lane_id as line_lane_id from lane_successors
+),
+
+old_lane as (
+    -- per frame after a transition: is the ego (back) in the lane it came from, and how far from it is it
+    select
+        p.drive_id,
+        p.ego_id,
+        p.frame,
+        max(case when p.lane_id = l.line_lane_id then 1 else 0 end) as back_in_old_lane,
+        min(tl.dist_m) as old_lane_dist_m
+    from pending as p
+    inner join lane_line as l
+        on p.map_id = l.map_id and p.from_lane_id = l.lane_id
+    left join track_lanes as tl
+        on p.drive_id = tl.drive_id and p.ego_id = tl.actor_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
+    where p.transition_frame is not null
+    group by p.drive_id, p.ego_id, p.frame
+),
+
+returns as (
+    select
+        p.drive_id,
+        p.ego_id,
+        p.transition_frame,
+        min(p.frame) as return_frame
+    from pending as p
+    inner join old_lane as o
+        on p.drive_id = o.drive_id and p.ego_id = o.ego_id and p.frame = o.frame
+    where o.back_in_old_lane = 1 and p.frame > p.transition_frame
+    group by p.drive_id, p.ego_id, p.transition_frame
 ),
 
 changes as (
+    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
+    -- tolerance away from the old lane (and from the lanes that continue it)
     select
-        n.drive_id,
-        n.ego_id,
-        n.previous_lane_id as from_lane_id,
-        n.lane_id as to_lane_id,
-        n.side,
-        min(i.frame) as frame
-    from neighbour_runs as n
-    inner join islands as i
-        on n.drive_id = i.drive_id and n.ego_id = i.ego_id
-        and i.frame between n.run_start_frame and n.run_end_frame
-    left join track_lanes as tl
-        on i.drive_id = tl.drive_id and i.ego_id = tl.actor_id and i.frame = tl.frame
-        and n.previous_lane_id = tl.lane_id
-    where tl.dist_m is null or tl.dist_m > $lane_calculation_tolerance_length_m
-    group by n.drive_id, n.ego_id, n.previous_lane_id, n.lane_id, n.side, n.run_start_frame
+        p.drive_id,
+        p.ego_id,
+        p.side,
+        min(p.frame) as frame
+    from pending as p
+    inner join old_lane as o
+        on p.drive_id = o.drive_id and p.ego_id = o.ego_id and p.frame = o.frame
+    left join returns as r
+        on p.drive_id = r.drive_id and p.ego_id = r.ego_id and p.transition_frame = r.transition_frame
+    where p.lane_id is not null
+        and (r.return_frame is null or p.frame < r.return_frame)
+        and o.back_in_old_lane = 0
+        and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
+    group by p.drive_id, p.ego_id, p.transition_frame, p.side
 )
 
 select

@@ -1,6 +1,6 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
--- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lanes, lane_successors
+-- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_successors
 -- params: $relation_range_m, $object_relation_range_m
 --
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
@@ -16,7 +16,7 @@
 --   box_distance_m      closest distance between the two boxes, 0 when they overlap (separating-axis test);
 --                       otherwise the least corner-to-box distance over the 8 corners (exact for rectangles)
 --   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor
---   adjacent_side       'left'/'right' when the actor's lane is the ego lane's same-direction neighbour
+--   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours)
 --   closing_speed_mps   rate at which lon_gap shrinks: actor speed along the ego axis minus ego speed,
 --                       sign taken so that positive means closing
 --   time_headway_s      lon_gap / speed of the trailing vehicle (the one behind); NULL if it does not move
@@ -140,17 +140,14 @@ lane_relation as (
         coalesce(
             al.lane_id = m.ego_lane_id or ahead.lane_id is not null or behind.lane_id is not null, false
         ) as same_lane,
-        case
-            when al.lane_id = el.left_lane_id and el.left_same_direction then 'left'
-            when al.lane_id = el.right_lane_id and el.right_same_direction then 'right'
-        end as adjacent_side
+        beside.side as adjacent_side
     from measured as m
     inner join drive_inputs as d
         on m.drive_id = d.drive_id
     left join actor_lanes as al
         on m.drive_id = al.drive_id and m.actor_id = al.actor_id and m.frame = al.frame
-    left join lanes as el
-        on d.map_id = el.map_id and m.ego_lane_id = el.lane_id
+    left join lane_neighbours as beside
+        on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
     left join lane_successors as ahead
         on d.map_id = ahead.map_id and m.ego_lane_id = ahead.lane_id and al.lane_id = ahead.successor_id
     left join lane_successors as behind

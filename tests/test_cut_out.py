@@ -1,0 +1,88 @@
+"""sut_cut_out on hand-made tracks: both phases, their duration limits, the coverage at the lane change, and
+lane changes across road-segment boundaries."""
+
+from __future__ import annotations
+
+import numpy as np
+import polars as pl
+
+from logiq_sql.match import match
+from tests.helpers import LANE_W, Y1, Y2, actor, intervals, lane, make_db, times
+
+CUT_OUT = "sut_cut_out"
+
+
+def ramp(t: np.ndarray, start_s: float, y_from: float, y_to: float, seconds: float = 1.0) -> np.ndarray:
+    """y moving from y_from to y_to at constant lateral speed between start_s and start_s + seconds."""
+    return y_from + (y_to - y_from) * np.clip((t - start_s) / seconds, 0.0, 1.0)
+
+
+# The ego (x = 100 + 10 t) follows the actor 30 m ahead (bumper gap 25.5 m, headway 2.55 s) in the right lane
+# and moves to the left lane between t = 4.5 and 5.5 s. Its centre is more than the 1 m tolerance away from
+# the right lane (y > 4.5) from t = 5.3 s: the lane change, and the first frame of ego_side_of_npc.
+CHANGE_S = 5.3
+
+
+def drive(t, ego_y, actor_y=Y1, actor_start=0):
+    return [actor("ego", t, 100 + 10 * t, ego_y, is_ego=True),
+            actor("npc", t[actor_start:], 130 + 10 * t[actor_start:], actor_y)]
+
+
+def test_cut_out_keeps_the_last_and_first_three_seconds_around_the_lane_change(tmp_path):
+    t = times(10.0)
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)))
+    result = match(db, scenarios=[CUT_OUT])
+    # phase 1 ran from 0.0 to 5.2 s: its last 3 s are kept; phase 2 from 5.3 s to the end: its first 3 s
+    assert intervals(result.matches, CUT_OUT) == [("ego", "npc", 2.2, 8.3)]
+    phases = result.match_phases.sort("phase_index")
+    assert phases["phase"].to_list() == ["ego_on_same_lane", "ego_side_of_npc"]
+    assert [(round(a, 3), round(b, 3)) for a, b in phases.select("start_s", "end_s").iter_rows()] == [
+        (2.2, 5.2), (CHANGE_S, 8.3)]
+    (kpi,) = result.kpis.iter_rows(named=True)
+    assert abs(kpi["speed_at_change_lane_kph"] - 36.0) < 1e-6
+    assert kpi["side_of_npc_relative_to_ego_at_lane_change"] == "right"   # the ego moved left
+    assert 20.0 <= kpi["distance_at_change_lane_m"] <= 25.5                  # the ego is turned ~19 degrees
+    hits = result.coverage.filter(pl.col("item") == "side_of_npc_relative_to_ego_at_lane_change")
+    assert dict(hits.select("bucket", "hits").iter_rows()) == {"left": 0, "right": 1}
+
+
+def test_the_actor_changing_lanes_is_not_an_ego_cut_out(tmp_path):
+    t = times(10.0)
+    db = make_db(tmp_path, drive(t, Y1, actor_y=ramp(t, 4.5, Y1, Y2)))
+    assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
+
+
+def test_phase_minimum_durations(tmp_path):
+    t = times(10.0)
+    # the actor appears at t = 4.7 s: the ego follows it for 0.5 s (4.7 .. 5.2) before the lane change
+    short_follow = make_db(tmp_path / "a", drive(t, ramp(t, 4.5, Y1, Y2), actor_start=47))
+    assert intervals(match(short_follow, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
+    relaxed = match(short_follow, scenarios=[CUT_OUT], overrides={"min_ego_on_same_lane_phase_duration": "0.5s"})
+    assert intervals(relaxed.matches, CUT_OUT) == [("ego", "npc", 4.7, 8.3)]
+    # the ego goes back from t = 5.8 s: within the tolerance of the actor's lane again from 6.1 s, so it was
+    # beside the actor for 0.7 s (5.3 .. 6.0), shorter than min_ego_on_side_of_npc_phase_duration
+    back = ramp(t, 4.5, Y1, Y2) - ramp(t, 5.8, 0.0, LANE_W)
+    short_side = make_db(tmp_path / "b", drive(t, back))
+    assert intervals(match(short_side, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
+
+
+def test_lane_change_across_a_segment_boundary(tmp_path):
+    t = times(10.0)
+    # each lane is split at x = 151.5 (A -> B); the ego changes lanes while it crosses the boundary, so its
+    # best lane goes A1 -> A2 -> B2, and the actor, already on B1, stays in its lane
+    lanes = [lane("A1", 0.0, 0.0, 151.5, left="A2"), lane("A2", LANE_W, 0.0, 151.5, right="A1"),
+             lane("B1", 0.0, 151.5, 2000.0, left="B2"), lane("B2", LANE_W, 151.5, 2000.0, right="B1")]
+    successors = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A1", "B1"), ("A2", "B2"))]
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), lanes, successors)
+    assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.2, 8.3)]
+
+
+def test_actor_crossing_a_segment_boundary_while_the_ego_is_beside_it(tmp_path):
+    t = times(10.0)
+    # the boundary is at x = 190: the actor crosses it at t = 6 s, the ego only at t = 9 s; during phase 2 the
+    # actor is on B1 while the ego is still on A2, which is still beside it
+    lanes = [lane("A1", 0.0, 0.0, 190.0, left="A2"), lane("A2", LANE_W, 0.0, 190.0, right="A1"),
+             lane("B1", 0.0, 190.0, 2000.0, left="B2"), lane("B2", LANE_W, 190.0, 2000.0, right="B1")]
+    successors = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A1", "B1"), ("A2", "B2"))]
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), lanes, successors)
+    assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.2, 8.3)]
