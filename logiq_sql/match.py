@@ -68,9 +68,9 @@ class MatchResult:
 
 
 def parse_ego(ego: str) -> dict[str, object]:
-    """``auto | recorded | all | every:N | <actor id>`` -> the egos.sql parameters."""
+    """``auto | recorded | all | every:N | <actor id>[,<actor id>...]`` -> the egos.sql parameters."""
     if ego in ("auto", "recorded", "all"):
-        return {"ego_mode": ego, "ego_every": 1, "ego_actor_id": ""}
+        return {"ego_mode": ego, "ego_every": 1, "ego_actor_ids_csv": ""}
     if ego.startswith("every:"):
         try:
             n = int(ego.split(":", 1)[1])
@@ -78,8 +78,8 @@ def parse_ego(ego: str) -> dict[str, object]:
                 raise ValueError
         except ValueError:
             raise ScenarioError(f"--ego {ego}: N in every:N must be a whole number >= 1.") from None
-        return {"ego_mode": "every", "ego_every": n, "ego_actor_id": ""}
-    return {"ego_mode": "id", "ego_every": 1, "ego_actor_id": ego}
+        return {"ego_mode": "every", "ego_every": n, "ego_actor_ids_csv": ""}
+    return {"ego_mode": "id", "ego_every": 1, "ego_actor_ids_csv": "," + ",".join(i.strip() for i in ego.split(",")) + ","}
 
 
 def resolve_scenarios(names: list[str] | None, overrides: dict[str, str]) -> list[Scenario]:
@@ -208,7 +208,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
     Args:
         db_path: a DuckDB file written by ``ingest``.
         scenarios: scenario names (default: every concrete scenario in ``scenarios/``).
-        ego: ``auto`` (recorded ego, else every vehicle), ``recorded``, ``all``, ``every:N`` or an actor id.
+        ego: ``auto`` (recorded ego, else every vehicle), ``recorded``, ``all``, ``every:N`` or actor ids
+            (comma-separated).
         overrides: parameter name -> value with unit, e.g. ``{"max_distance_from_cyclist": "4m"}``.
         drives: restrict the run to these drive ids (default: every ingested drive).
         relation_range: keep ego-actor pairs whose centres are at most this far apart.

@@ -1,13 +1,14 @@
 -- relations: egos
 -- grain: one row per (drive_id, ego_id): the actors that play the SUT in this run
 -- reads: tracks, drive_inputs, run_drives
--- params: $ego_mode, $ego_every, $ego_actor_id
+-- params: $ego_mode, $ego_every, $ego_actor_ids_csv
 --
 --   auto      the recorded ego where the drive has one, else every actor of kind vehicle (NGSIM)
 --   recorded  the recorded ego only; drives without one get status no_ego
 --   all       every actor of kind vehicle, and the recorded ego
 --   every     every ego_every-th vehicle by actor_id order (1st, 1+N-th, ...), and the recorded ego
---   id        the actor whose actor_id is ego_actor_id, in every drive that has it
+--   id        the actors whose actor_id is in the comma-separated list ego_actor_ids_csv (',a,b,'), in
+--             every drive that has them
 with
 
 candidates as (
@@ -40,4 +41,4 @@ where ($ego_mode = 'recorded' and is_ego)
     or ($ego_mode = 'auto' and (is_ego or (ego_actor_id is null and kind = 'vehicle')))
     or ($ego_mode = 'all' and (is_ego or kind = 'vehicle'))
     or ($ego_mode = 'every' and (is_ego or (kind = 'vehicle' and (vehicle_number - 1) % $ego_every = 0)))
-    or ($ego_mode = 'id' and actor_id = $ego_actor_id)
+    or ($ego_mode = 'id' and instr($ego_actor_ids_csv, ',' || actor_id || ',') > 0)
