@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 import sys
+from pathlib import Path
 
 from logiq_sql.errors import LogiqError
+from logiq_sql.evaluate import add_evaluate_parser
+from logiq_sql.labels import add_label_parser
+from logiq_sql.match import DEFAULT_RELATION_RANGE
 
 EPILOG = "Docs: README.md and docs/ in the repository. Exit codes: 0 ok, 1 unexpected failure, 2 bad input."
 
@@ -30,6 +33,13 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
     summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
     print(f"{args.db}: {summary}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from logiq_sql.simulate import simulate
+
+    print(simulate(args.kind, args.minutes, args.seed, args.out))
     return 0
 
 
@@ -92,26 +102,41 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("ingest", help="read drives into a DuckDB file", epilog=EPILOG,
                        description="Read drives (files or folders of them) into the canonical tables of a DuckDB "
                                    "file. Re-ingesting a drive replaces it.")
-    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet"],
+    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo"],
                    help="commonroad: CommonRoad XML (.xml, .xml.gz); scenarionet: ScenarioNet .pkl; "
-                        "parquet: canonical tables (see docs/tables.md)")
+                        "parquet: canonical tables (see docs/tables.md); sumo: SUMO run folders (docs/sumo.md)")
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_ingest)
 
+    p = sub.add_parser("simulate", help="simulate drives with Eclipse SUMO (optional extra [sumo])", epilog=EPILOG,
+                       description="Build a motorway or a signalised junction with SUMO's own tools and run it at "
+                                   "0.1 s steps; writes the network, routes, FCD and SUMO's reference outputs into "
+                                   "DIR, ready for `ingest sumo DIR` (docs/sumo.md). Needs pip install "
+                                   "'logiq-sql[sumo]'.")
+    p.add_argument("kind", choices=["motorway", "junction"],
+                   help="motorway: 3.5 km, 3 lanes, on- and off-ramp, dense mixed traffic; junction: signalised "
+                        "4-way junction with permissive left turns, cars and bicycles")
+    p.add_argument("--minutes", type=float, default=5.0, help="simulated minutes (default 5; the first 60 s "
+                                                              "are warm-up)")
+    p.add_argument("--seed", type=int, default=1, help="random seed (default 1); the same seed gives the same run")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder to write the run into")
+    p.set_defaults(func=cmd_simulate)
+
     p = sub.add_parser("match", help="match scenarios against the drives of a DuckDB file", epilog=EPILOG,
                        description="Match scenarios and store matches, match_phases, kpis and coverage in the file.")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
     p.add_argument("--scenario", action="append", metavar="NAME", help="scenario to match (repeatable; default all)")
-    p.add_argument("--ego", default="auto", metavar="all|ID",
+    p.add_argument("--ego", default="auto", metavar="auto|recorded|all|every:N|IDS",
                    help="who is the SUT: auto (recorded ego, else every vehicle; default), recorded, all, "
-                        "every:N, or one actor id")
+                        "every:N, or actor ids, comma-separated")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override a parameter, with its unit (e.g. max_distance_from_cyclist=4m)")
     p.add_argument("--drive", action="append", metavar="ID", help="only these drives (repeatable)")
-    p.add_argument("--relation-range", default="150m", metavar="LENGTH",
-                   help="keep ego-actor pairs whose centres are at most this far apart (default 150m)")
+    p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH",
+                   help="keep ego-actor pairs whose centres are at most this far apart "
+                        f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
     p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_match)
@@ -128,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", metavar="SCENARIO")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     p.add_argument("--ego", default="auto", help="as for match")
-    p.add_argument("--relation-range", default="150m", metavar="LENGTH", help="as for match")
+    p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("query", help="run read-only SQL against a DuckDB file and print a table", epilog=EPILOG)
@@ -136,6 +161,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", required=True, metavar="FILE")
     p.add_argument("--limit", type=int, default=40, help="rows to print (default 40)")
     p.set_defaults(func=cmd_query)
+
+    add_label_parser(sub)
+    add_evaluate_parser(sub)
     return parser
 
 

@@ -4,9 +4,17 @@ For every track row of a moving kind (static kinds such as cones are skipped), e
 ``LOCALISATION_RANGE_M`` (3 m) of the box centre is kept with its distance (0 inside) and the heading difference
 to the lane direction: the direction of the centre-line segment nearest to the point. Scenarios then pick lanes
 with their own ``lane_calculation_tolerance_length`` in SQL (``queries/relations/actor_lanes.sql``).
+
+Speed: candidate pairs come from the lanes' bounding boxes grown by the range (envelope tests only), then
+point-in-polygon tests (``contains_xy``, prepared) against each lane grown by a little more than the range and
+against the lane itself; ``distance`` is computed once, only for the points outside a lane but within reach.
+Chunks of points run on a thread pool (shapely and Polars release the GIL).
 """
 
 from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import polars as pl
@@ -16,16 +24,26 @@ from logiq_sql import schema
 
 STATIC_KINDS = ("object", "fod", "sign")
 CHUNK_POINTS = 250_000  # bounds the memory of one shapely query
+WORKERS = min(os.cpu_count() or 1, 4)  # chunks localised at once
 
 
 class LaneIndex:
     """The lanes of one map: prepared polygons and the centre-line vertices for direction look-ups."""
 
     def __init__(self, lanes: pl.DataFrame):
-        self.lane_ids = lanes["lane_id"].to_numpy()
+        self.lane_ids = lanes["lane_id"]
         self.polygons = shapely.from_wkt(lanes["polygon_wkt"].to_numpy())
         self.lines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
-        shapely.prepare(self.polygons)  # prepared polygons make the within-distance and inside tests fast
+        r = schema.LOCALISATION_RANGE_M
+        b = shapely.bounds(self.polygons)
+        boxes = shapely.box(b[:, 0] - r, b[:, 1] - r, b[:, 2] + r, b[:, 3] + r)
+        self.boxes = shapely.STRtree(boxes)
+        # every point within r of a lane lies inside its buffer by r + 0.1 m: the buffer's arcs are chords that
+        # stay within cos(pi / 32) (0.5 %) of the radius, so this is an exact pre-filter for the distance test;
+        # an invalid polygon (possible in canonical Parquet) may buffer to less than itself: its box is used
+        self.reach = np.where(shapely.is_valid(self.polygons), shapely.buffer(self.polygons, r + 0.1), boxes)
+        shapely.prepare(self.polygons)  # prepared polygons make the point-in-polygon tests fast
+        shapely.prepare(self.reach)
         coords, owner = shapely.get_coordinates(self.lines, return_index=True)
         cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
         starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
@@ -49,12 +67,14 @@ class LaneIndex:
     def locate(self, x: np.ndarray, y: np.ndarray, heading: np.ndarray):
         """(row index, lane index, distance to polygon, heading minus lane direction) for every pair in range."""
         points = shapely.points(x, y)
-        # the tree holds the points and the (prepared) polygons query it: faster than the other way round
-        lane, row = shapely.STRtree(points).query(self.polygons, predicate="dwithin",
-                                                  distance=schema.LOCALISATION_RANGE_M)
+        row, lane = self.boxes.query(points)  # the point lies in the lane's box grown by the range
+        reach = shapely.contains_xy(self.reach[lane], x[row], y[row])
+        row, lane = row[reach], lane[reach]
         inside = shapely.contains_xy(self.polygons[lane], x[row], y[row])
         dist = np.zeros(len(row))
         dist[~inside] = shapely.distance(self.polygons[lane[~inside]], points[row[~inside]])
+        near = dist <= schema.LOCALISATION_RANGE_M
+        row, lane, dist = row[near], lane[near], dist[near]
         s = shapely.line_locate_point(self.lines[lane], points[row])
         lane_heading = self.direction(lane, s)
         diff = np.arctan2(np.sin(heading[row] - lane_heading), np.cos(heading[row] - lane_heading))
@@ -67,14 +87,15 @@ def locate(tracks: pl.DataFrame, lanes: pl.DataFrame, index: LaneIndex | None = 
     if moving.is_empty() or lanes.is_empty():
         return schema.empty(schema.TRACK_LANES)
     index = index or LaneIndex(lanes)
-    parts = []
-    for start in range(0, moving.height, CHUNK_POINTS):
+
+    def chunk_lanes(start: int) -> pl.DataFrame:
         chunk = moving.slice(start, CHUNK_POINTS)
         row, lane, dist, diff = index.locate(chunk["x_m"].to_numpy(), chunk["y_m"].to_numpy(),
                                              chunk["heading_rad"].to_numpy())
-        parts.append(pl.DataFrame({
-            "drive_id": chunk["drive_id"].to_numpy()[row], "actor_id": chunk["actor_id"].to_numpy()[row],
-            "frame": chunk["frame"].to_numpy()[row], "lane_id": index.lane_ids[lane], "dist_m": dist,
-            "heading_diff_rad": diff,
-        }, schema=schema.TRACK_LANES.polars_schema))
+        return chunk.select(pl.col("drive_id", "actor_id", "frame").gather(row)).with_columns(
+            lane_id=index.lane_ids.gather(lane), dist_m=pl.Series(dist), heading_diff_rad=pl.Series(diff),
+        ).cast(schema.TRACK_LANES.polars_schema)
+
+    with ThreadPoolExecutor(WORKERS) as pool:
+        parts = list(pool.map(chunk_lanes, range(0, moving.height, CHUNK_POINTS)))
     return pl.concat(parts) if parts else schema.empty(schema.TRACK_LANES)

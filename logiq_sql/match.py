@@ -27,7 +27,7 @@ from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import materialise, query_text, render_steps
 
-DEFAULT_RELATION_RANGE = "150m"
+DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
 RELATION_STEPS = (

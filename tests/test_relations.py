@@ -96,6 +96,7 @@ def test_mttc_with_a_braking_leader(tmp_path):
 
 def test_pairs_beyond_the_relation_range_are_not_kept(tmp_path):
     t = times(1.0)
-    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("far", t, 300 + 10 * t, Y1),
-                            actor("near", t, 200 + 10 * t, Y1)])
+    # centres 200 m (the default range) and 201 m from the ego
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("far", t, 301 + 10 * t, Y1),
+                            actor("near", t, 300 + 10 * t, Y1)])
     assert relation_rows(db)["actor_id"].unique().to_list() == ["near"]

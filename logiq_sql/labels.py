@@ -1,0 +1,399 @@
+"""Ground-truth labels of LogIQ scenarios from a SUMO run's own records, for ``logiq-sql evaluate``.
+
+Why: logiq_sql finds scenarios from the tracks and the map only. SUMO knows what it simulated: each vehicle's
+leader and the gap to it (FCD leaderID, leaderGap), every lane change (lanechange-output), each vehicle's lane
+(FCD lane) and its exact box (FCD front bumper and angle, vType length and width). Labels built from those
+records, never from logiq_sql's SQL, are an independent reference. The definitions, and why, are in
+docs/evaluation.md; parameter values come from the scenario files (``load_scenario``), in SI units.
+
+Everything is vectorised Polars and numpy over the whole run: no Python loop over rows, pairs or timestamps.
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from logiq_sql.errors import InputError, ScenarioError, did_you_mean
+from logiq_sql.readers.sumo import _dt, _one, _xml_records, read_fcd, read_vtypes, run_folders
+from logiq_sql.scenario import load_scenario
+from logiq_sql.schema import VEHICLE_KINDS
+
+SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut")
+LABEL_SCHEMA = {
+    "drive_id": pl.String, "scenario": pl.String, "ego_id": pl.String, "actor_id": pl.String,
+    "start_s": pl.Float64, "end_s": pl.Float64, "source": pl.String,
+}
+EPS = 1e-9  # durations are multiples of dt: compare them to limits without float noise
+_FCD_COLUMNS = ("vehicle_id", "type_id", "x_m", "y_m", "angle_deg", "speed_mps", "lane_id", "leader_id",
+                "leader_gap_m")
+_SEGMENT_REACH = 2  # lane segments of the actor searched for the ego's edge: an internal lane, then the next edge
+
+
+# ------------------------------------------------------------------------------------------------- parameters
+
+def scenario_values(names: list[str], overrides: dict[str, str] | None = None) -> dict[str, dict[str, object]]:
+    """Per scenario, parameter name -> value in SI units (``kinds``: a tuple, unset = the vehicle kinds).
+
+    An override applies to every scenario that declares the parameter, as for ``match``.
+    """
+    overrides = overrides or {}
+    unknown = [n for n in names if n not in SCENARIOS]
+    if unknown:
+        raise ScenarioError(f"label sumo: no labeller for scenario '{unknown[0]}'.{did_you_mean(unknown[0], SCENARIOS)}"
+                            f"\n\nHint: the labelled scenarios are {', '.join(SCENARIOS)}.")
+    scenarios = [load_scenario(n) for n in names]
+    known = {p for s in scenarios for p in s.params}
+    for name, text in overrides.items():
+        if name not in known:
+            raise ScenarioError(f"--set {name}={text}: no labelled scenario has a parameter '{name}'."
+                                f"{did_you_mean(name, sorted(known))}")
+    out = {}
+    for s in scenarios:
+        s = s.with_overrides({k: v for k, v in overrides.items() if k in s.params})
+        values = {p.name: p.value for p in s.params.values()}
+        if "kinds" in values and values["kinds"] is None:
+            values["kinds"] = VEHICLE_KINDS
+        out[s.name] = values
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- the run
+
+def load_run(folder: str | Path) -> tuple[str, float, pl.DataFrame, pl.DataFrame]:
+    """(drive_id, dt_s, rows, changes) of a SUMO run folder.
+
+    rows: one per FCD vehicle row whose vType is known, with frame, kind, vclass, length_m, width_m, edge_id,
+    lane_index, lane_run (count of the vehicle's lane changes so far) and lane_segment (count of lane switches
+    of any kind so far: lane changes and moves onto the next lane of the route).
+    changes: one per lanechange-output record: vehicle_id, frame, t_s, from_lane, to_lane.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder; pass a SUMO run folder (logiq-sql simulate writes one).")
+    fcd_path = _one(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
+                    "run sumo with --fcd-output fcd.xml.gz and the leader attributes (logiq-sql simulate does).")
+    lc_path = _one(folder, ("lanechange*.xml", "lanechange*.xml.gz"), "lane-change output",
+                   "run sumo with --lanechange-output lanechange.xml.gz (logiq-sql simulate does).")
+    if not _has_leaders(fcd_path):
+        raise InputError(f"{fcd_path}: the FCD has no leaderID/leaderGap attributes. Fix: run sumo with "
+                         "--fcd-output.attributes including leaderID,leaderSpeed,leaderGap and "
+                         "--fcd-output.max-leader-distance 250, as XML (logiq-sql simulate does).")
+    fcd = read_fcd(fcd_path, _FCD_COLUMNS)
+    dt = _dt(fcd, fcd_path)
+    vtypes = read_vtypes(folder).select("type_id", "vclass", "kind", "length_m", "width_m")
+    changes = _xml_records(lc_path, "change", ("id", "time", "from", "to"), "</lanechanges>").select(
+        vehicle_id=pl.col("id"), t_s=pl.col("time").cast(pl.Float64), from_lane=pl.col("from"),
+        to_lane=pl.col("to"),
+    ).with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64))
+    flags = changes.select("vehicle_id", "frame").unique().with_columns(is_change=pl.lit(1, pl.Int64))
+    lane = pl.col("lane_id")
+    rows = (
+        fcd.join(vtypes, on="type_id", how="inner")
+        .with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64),
+                      edge_id=lane.str.extract(r"^(.*)_\d+$"),
+                      lane_index=lane.str.extract(r"_(\d+)$").cast(pl.Int64))
+        .join(flags, on=["vehicle_id", "frame"], how="left")
+        .with_columns(
+            lane_run=pl.col("is_change").fill_null(0).cum_sum().over("vehicle_id", order_by="frame"),
+            lane_segment=(lane != lane.shift(1)).fill_null(False).cast(pl.Int64).cum_sum()
+            .over("vehicle_id", order_by="frame"))
+        .drop("is_change")
+    )
+    return folder.name, dt, rows, changes
+
+
+def _has_leaders(fcd_path: Path) -> bool:
+    """Whether SUMO wrote the leader attributes: the first vehicle element has leaderID (SUMO's native Parquet
+    never has them: it cannot write those columns)."""
+    if fcd_path.name.endswith(".parquet"):
+        return any("leaderID" in c for c in pl.read_parquet_schema(fcd_path))
+    try:
+        with open(fcd_path, "rb") as f:
+            gzipped = f.read(2) == b"\x1f\x8b"
+        with (gzip.open if gzipped else open)(fcd_path, "rb") as f:
+            head = f.read(1 << 16)
+    except (OSError, EOFError, zlib.error):
+        return True  # read_fcd reports the damaged file with its fix
+    start = head.find(b"<vehicle ")
+    end = head.find(b">", start)
+    return start < 0 or b"leaderID=" in head[start:end if end > 0 else None]
+
+
+def _is_vehicle() -> pl.Expr:
+    """A potential ego: a vType of a vehicle kind (not bicycle, pedestrian or an object class)."""
+    return pl.col("kind").is_in(VEHICLE_KINDS)
+
+
+def _islands(frames: pl.DataFrame, keys: list[str]) -> pl.DataFrame:
+    """Maximal runs of consecutive frames per key: start/end frame and t_s."""
+    return (frames.with_columns(island=pl.col("frame") - pl.col("frame").rank("ordinal").over(keys).cast(pl.Int64))
+            .group_by(*keys, "island")
+            .agg(start_frame=pl.col("frame").min(), end_frame=pl.col("frame").max(),
+                 start_s=pl.col("t_s").min(), end_s=pl.col("t_s").max()))
+
+
+def _headway_ok(gap: str, speed: str, p: dict) -> pl.Expr:
+    """gap / speed of the trailing vehicle within the scenario's time headway range (speed > 0)."""
+    headway = pl.col(gap) / pl.col(speed)
+    return ((pl.col(speed) > 0) & (headway >= p["min_distance_from_sut_in_time_units"] - EPS)
+            & (headway <= p["max_distance_from_sut_in_time_units"] + EPS))
+
+
+# ------------------------------------------------------------------------------------------- follower_vehicle
+
+def follower_vehicle(rows: pl.DataFrame, p: dict) -> pl.DataFrame:
+    """The actor's FCD leader is the ego at a headway in range; islands cut at the ego's lane changes."""
+    egos = rows.filter(_is_vehicle()).select(ego_id="vehicle_id", frame="frame", ego_run="lane_run")
+    following = (
+        rows.filter(pl.col("kind").is_in(p["kinds"]) & pl.col("leader_id").is_not_null()
+                    & _headway_ok("leader_gap_m", "speed_mps", p))
+        .select(ego_id="leader_id", actor_id="vehicle_id", frame="frame", t_s="t_s")
+        .join(egos, on=["ego_id", "frame"])
+    )
+    islands = _islands(following, ["ego_id", "actor_id", "ego_run"])
+    return islands.filter(pl.col("end_s") - pl.col("start_s") >= p["min_scenario_duration"] - EPS).select(
+        "ego_id", "actor_id", "start_s", "end_s",
+        source=pl.lit("fcd: actor's leaderID = ego, leaderGap / actor speed in range; "
+                      "cut at the ego's lanechange records"))
+
+
+# ------------------------------------------------------------------------------------------------ sut_cut_out
+
+def _window(changes: pl.DataFrame, frames: int, sign: int, first: int) -> pl.DataFrame:
+    """One row per change and step k = 0..frames: frame = fc + first + sign * k."""
+    return changes.with_columns(k=pl.int_ranges(0, frames + 1)).explode("k").with_columns(
+        frame=pl.col("fc") + first + sign * pl.col("k"))
+
+
+def _leading_run(grid: pl.DataFrame, ok: pl.Expr) -> pl.DataFrame:
+    """Per change: how many steps from k = 0 on all satisfy ``ok`` (a missing row fails), and their t_s span."""
+    flagged = grid.with_columns(ok=ok.fill_null(False).cast(pl.Int64)).with_columns(
+        ok=pl.col("ok").cum_min().over("change_id", order_by="k"))
+    return flagged.group_by("change_id").agg(
+        steps=pl.col("ok").sum(), first_s=pl.col("t_s").filter(pl.col("ok") == 1).min(),
+        last_s=pl.col("t_s").filter(pl.col("ok") == 1).max())
+
+
+def _actor_lane_on_ego_edge(grid: pl.DataFrame, rows: pl.DataFrame) -> pl.DataFrame:
+    """For every phase-2 step: the lane index the actor has on the ego's edge.
+
+    Same edge: its own lane. Otherwise one of them has crossed onto the next edge (or a junction's internal lane)
+    first: take the lane the actor itself drove, or will drive, on the ego's edge, the nearest of its own lane
+    segments up to ``_SEGMENT_REACH`` before or after (so a split or merge of lanes is resolved as the actor went).
+    """
+    segments = rows.select("vehicle_id", "lane_segment", "edge_id", "lane_index").unique(
+        ["vehicle_id", "lane_segment"])
+    offsets = pl.int_ranges(-_SEGMENT_REACH, _SEGMENT_REACH + 1)
+    return (
+        grid.select("change_id", "k", "actor_id", "a_segment", "e_edge")
+        .with_columns(offset=offsets).explode("offset")
+        .join(segments, left_on=["actor_id", pl.col("a_segment") + pl.col("offset")],
+              right_on=["vehicle_id", "lane_segment"])
+        .filter(pl.col("edge_id") == pl.col("e_edge"))
+        .sort(pl.col("offset").abs(), "offset")
+        .unique(["change_id", "k"], keep="first")
+        .select("change_id", "k", a_index_on_e_edge="lane_index")
+    )
+
+
+def sut_cut_out(rows: pl.DataFrame, changes: pl.DataFrame, p: dict, dt: float) -> pl.DataFrame:
+    """The ego follows its FCD leader A, changes lanes (a lanechange record), then drives beside A.
+
+    Phase 1 ends at the frame before the record, phase 2 starts at the record's frame (SUMO records the change
+    in the step the ego's front centre enters the new lane: its FCD lane there is already the new one).
+    """
+    vehicle_rows = rows.filter(_is_vehicle())
+    ego_at = vehicle_rows.select(ego_id="vehicle_id", frame="frame", e_leader="leader_id", e_gap="leader_gap_m",
+                                 e_speed="speed_mps", e_run="lane_run", e_edge="edge_id", e_index="lane_index",
+                                 t_s="t_s")
+    actor_at = rows.filter(pl.col("kind").is_in(p["kinds"])).select(
+        actor_id="vehicle_id", frame="frame", a_run="lane_run", a_segment="lane_segment")
+    before = (
+        changes.select(ego_id="vehicle_id", fc="frame", tc="t_s", from_lane="from_lane", to_lane="to_lane")
+        .with_row_index("change_id")
+        .join(ego_at.select("ego_id", "frame", actor_id="e_leader", run_before="e_run"),
+              left_on=["ego_id", pl.col("fc") - 1], right_on=["ego_id", "frame"])
+        .filter(pl.col("actor_id").is_not_null())
+        .join(actor_at.select("actor_id", "frame", a_run_before="a_run"),
+              left_on=["actor_id", pl.col("fc") - 1], right_on=["actor_id", "frame"])
+    )
+    max1 = math.floor(p["max_ego_on_same_lane_phase_duration"] / dt + EPS)
+    phase1 = _leading_run(
+        _window(before, max1, -1, -1).join(ego_at, on=["ego_id", "frame"], how="left"),
+        (pl.col("e_leader") == pl.col("actor_id")) & (pl.col("e_run") == pl.col("run_before"))
+        & _headway_ok("e_gap", "e_speed", p))
+    max2 = math.floor(p["max_ego_on_side_of_npc_phase_duration"] / dt + EPS)
+    grid2 = (_window(before, max2, 1, 0).join(ego_at, on=["ego_id", "frame"], how="left")
+             .join(actor_at, on=["actor_id", "frame"], how="left"))
+    grid2 = grid2.join(_actor_lane_on_ego_edge(grid2.filter(pl.col("a_segment").is_not_null()), rows),
+                       on=["change_id", "k"], how="left")
+    phase2 = _leading_run(grid2, (pl.col("e_run") == pl.col("run_before") + 1)
+                          & (pl.col("a_run") == pl.col("a_run_before"))
+                          & ((pl.col("a_index_on_e_edge") - pl.col("e_index")).abs() == 1))
+    min1, min2 = p["min_ego_on_same_lane_phase_duration"], p["min_ego_on_side_of_npc_phase_duration"]
+    return (
+        before.join(phase1, on="change_id").join(phase2, on="change_id", suffix="_2")
+        .filter(((pl.col("steps") - 1) * dt >= min1 - EPS) & ((pl.col("steps_2") - 1) * dt >= min2 - EPS))
+        .select("ego_id", "actor_id", start_s="first_s", end_s="last_s_2",
+                source=pl.format("lanechange-output: {} -> {} at {} s; fcd: ego's leaderID before, lanes after",
+                                 "from_lane", "to_lane", pl.col("tc").round(3)))
+    )
+
+
+# ---------------------------------------------------------------------------------- cyclist_close_to_moving_sut
+
+def box_corners(x_m: np.ndarray, y_m: np.ndarray, heading_rad: np.ndarray, length_m: np.ndarray,
+                width_m: np.ndarray) -> np.ndarray:
+    """(n, 4, 2) corners, counter-clockwise, of boxes given by centre, heading and size."""
+    c, s = np.cos(heading_rad), np.sin(heading_rad)
+    lon = np.array([1, -1, -1, 1])[None, :] * (length_m / 2)[:, None]
+    lat = np.array([1, 1, -1, -1])[None, :] * (width_m / 2)[:, None]
+    return np.stack([x_m[:, None] + lon * c[:, None] - lat * s[:, None],
+                     y_m[:, None] + lon * s[:, None] + lat * c[:, None]], axis=-1)
+
+
+def box_distance_m(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Closest distance between convex quadrilaterals ``a`` and ``b`` ((n, 4, 2) corners each), 0 on overlap.
+
+    Overlap by the separating-axis test on the edge normals of both; otherwise the least distance from a corner
+    of one to an edge of the other (for two disjoint convex polygons the closest points include a corner).
+    """
+    def separated(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        edges = np.roll(p, -1, axis=1) - p
+        normals = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)  # (n, 4, 2)
+        pp = np.einsum("nkd,njd->nkj", normals, p)
+        qq = np.einsum("nkd,njd->nkj", normals, q)
+        return ((pp.max(axis=2) < qq.min(axis=2)) | (qq.max(axis=2) < pp.min(axis=2))).any(axis=1)
+
+    def corner_to_edges(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        start = q[:, None, :, :]                               # (n, 1, 4, 2) edges of q
+        edge = (np.roll(q, -1, axis=1) - q)[:, None, :, :]
+        rel = p[:, :, None, :] - start                         # (n, 4 corners, 4 edges, 2)
+        t = np.clip((rel * edge).sum(-1) / np.maximum((edge * edge).sum(-1), 1e-12), 0.0, 1.0)
+        return np.linalg.norm(rel - t[..., None] * edge, axis=-1).min(axis=(1, 2))
+
+    apart = separated(a, b) | separated(b, a)
+    return np.where(apart, np.minimum(corner_to_edges(a, b), corner_to_edges(b, a)), 0.0)
+
+
+def _with_boxes(rows: pl.DataFrame) -> pl.DataFrame:
+    """Box centre and heading from SUMO's front bumper and navigation angle (0 = north, clockwise)."""
+    heading = ((90.0 - pl.col("angle_deg")) * math.pi / 180.0)
+    return rows.with_columns(heading_rad=heading).with_columns(
+        xc_m=pl.col("x_m") - pl.col("length_m") / 2 * pl.col("heading_rad").cos(),
+        yc_m=pl.col("y_m") - pl.col("length_m") / 2 * pl.col("heading_rad").sin(),
+        reach_m=(pl.col("length_m") ** 2 + pl.col("width_m") ** 2).sqrt() / 2)
+
+
+def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.DataFrame:
+    """Ego at speed >= sut_minimal_speed with a cyclist's box within the distance band; pieces of at most
+    max_phase_duration."""
+    boxes = _with_boxes(rows)
+    cols = ("vehicle_id", "frame", "t_s", "xc_m", "yc_m", "heading_rad", "length_m", "width_m", "reach_m")
+    egos = boxes.filter(_is_vehicle() & (pl.col("speed_mps") >= p["sut_minimal_speed"] - EPS)).select(cols)
+    bikes = boxes.filter(pl.col("kind") == "cyclist").select(cols)
+    if egos.is_empty() or bikes.is_empty():
+        return pl.DataFrame(schema={k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s",
+                                                                  "source")})
+    # spatial hash: a pair can only be close when the centres are within the band plus both half diagonals
+    cell_m = p["max_distance_from_cyclist"] + float(egos["reach_m"].max()) + float(bikes["reach_m"].max())
+    cell = [(pl.col("xc_m") / cell_m).floor().cast(pl.Int64).alias("cx"),
+            (pl.col("yc_m") / cell_m).floor().cast(pl.Int64).alias("cy")]
+    near = pl.int_ranges(-1, 2)
+    bikes = (bikes.with_columns(*cell).with_columns(dx=near).explode("dx").with_columns(dy=near).explode("dy")
+             .with_columns(cx=pl.col("cx") + pl.col("dx"), cy=pl.col("cy") + pl.col("dy")).drop("dx", "dy"))
+    pairs = (egos.with_columns(*cell).join(bikes, on=["frame", "cx", "cy"], suffix="_c")
+             .filter(((pl.col("xc_m") - pl.col("xc_m_c")) ** 2 + (pl.col("yc_m") - pl.col("yc_m_c")) ** 2).sqrt()
+                     <= p["max_distance_from_cyclist"] + pl.col("reach_m") + pl.col("reach_m_c")))
+
+    def corners(suffix: str) -> np.ndarray:
+        return box_corners(*(pairs[c + suffix].to_numpy() for c in ("xc_m", "yc_m", "heading_rad", "length_m",
+                                                                    "width_m")))
+
+    distance = box_distance_m(corners(""), corners("_c")) if pairs.height else np.zeros(0)
+    close = pairs.with_columns(distance_m=pl.Series(distance, dtype=pl.Float64)).filter(
+        (pl.col("distance_m") >= p["min_distance_from_cyclist"] - EPS)
+        & (pl.col("distance_m") <= p["max_distance_from_cyclist"] + EPS)
+    ).select(ego_id="vehicle_id", actor_id="vehicle_id_c", frame="frame", t_s="t_s")
+    piece_frames = math.floor(p["max_phase_duration"] / dt + EPS) + 1
+    keys = ["ego_id", "actor_id"]
+    pieces = (close.with_columns(island=pl.col("frame") - pl.col("frame").rank("ordinal").over(keys).cast(pl.Int64))
+              .with_columns(piece=(pl.col("frame") - pl.col("frame").min().over(*keys, "island")) // piece_frames))
+    return pieces.group_by(*keys, "island", "piece").agg(start_s=pl.col("t_s").min(), end_s=pl.col("t_s").max()
+                                                         ).select(
+        "ego_id", "actor_id", "start_s", "end_s",
+        source=pl.lit("fcd x, y, angle + vType length, width: box distance in range; fcd speed of the ego"))
+
+
+# --------------------------------------------------------------------------------------------------- entry
+
+def label_sumo(run_dir: str | Path, scenarios: list[str] | None = None,
+               overrides: dict[str, str] | None = None) -> pl.DataFrame:
+    """Labels (``LABEL_SCHEMA``) of ``scenarios`` (default all three) in one SUMO run folder.
+
+    Every vehicle of the run is a potential ego; drive_id is the folder name, as ``ingest sumo`` names it.
+    """
+    values = scenario_values(list(scenarios or SCENARIOS), overrides)
+    drive_id, dt, rows, changes = load_run(run_dir)
+    found = []
+    for name, p in values.items():
+        if name == "follower_vehicle":
+            labels = follower_vehicle(rows, p)
+        elif name == "sut_cut_out":
+            labels = sut_cut_out(rows, changes, p, dt)
+        else:
+            labels = cyclist_close_to_moving_sut(rows, p, dt)
+        found.append(labels.select(pl.lit(drive_id).alias("drive_id"), pl.lit(name).alias("scenario"), pl.all()))
+    return pl.concat(found).cast(LABEL_SCHEMA).select(*LABEL_SCHEMA).sort(
+        "drive_id", "scenario", "ego_id", "actor_id", "start_s")
+
+
+def label_runs(paths: list[str | Path], scenarios: list[str] | None = None,
+               overrides: dict[str, str] | None = None) -> pl.DataFrame:
+    """Labels of every SUMO run folder at or under ``paths`` (one drive each; drive ids must be unique)."""
+    folders = [f for p in paths for f in run_folders(p)]
+    names = [f.name for f in folders]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise InputError(f"two run folders are both named '{twice[0]}' (the drive id). Fix: rename one.")
+    return pl.concat([label_sumo(f, scenarios, overrides) for f in folders])
+
+
+def cmd_label(args) -> int:
+    from logiq_sql.cli import _set_pairs
+
+    labels = label_runs(args.runs, args.scenario or None, _set_pairs(args.set))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    labels.write_parquet(out)
+    counts = labels.group_by("drive_id", "scenario").len().sort("drive_id", "scenario")
+    for r in counts.iter_rows(named=True):
+        print(f"  {r['drive_id']}: {r['scenario']}: {r['len']} label(s)", file=sys.stderr)
+    print(f"{out}: {labels.height} label(s) of {labels['drive_id'].n_unique()} run(s)")
+    return 0
+
+
+def add_label_parser(subparsers) -> None:
+    """Register ``logiq-sql label sumo RUN_DIR... --out FILE`` on the CLI's subparsers."""
+    from logiq_sql.cli import EPILOG
+
+    p = subparsers.add_parser(
+        "label", help="ground-truth labels from a simulator's own records (for evaluate)", epilog=EPILOG,
+        description="Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change "
+                    "output, lanes, vType boxes), independently of logiq_sql's SQL; `logiq-sql evaluate` scores "
+                    "matches against them. Definitions: docs/evaluation.md.")
+    p.add_argument("source", choices=["sumo"], help="sumo: run folders written by logiq-sql simulate")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them")
+    p.add_argument("--out", required=True, metavar="FILE", help="labels Parquet file to write")
+    p.add_argument("--scenario", action="append", metavar="NAME",
+                   help=f"scenario to label (repeatable; default all of {', '.join(SCENARIOS)})")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter, with its unit, as for match")
+    p.set_defaults(func=cmd_label)

@@ -1,0 +1,263 @@
+"""Ground-truth labels from SUMO records: exact definitions on hand-written runs, real properties on the fixtures."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import shapely
+import shapely.affinity
+
+from logiq_sql.errors import InputError, ScenarioError
+from logiq_sql.labels import LABEL_SCHEMA, add_label_parser, box_corners, box_distance_m, label_sumo
+from logiq_sql.readers.sumo import _xml_records, read_fcd, read_vtypes
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "tests/data/sumo"
+MOTORWAY, JUNCTION = FIXTURES / "motorway_s1", FIXTURES / "junction_s1"
+needs_fixtures = pytest.mark.skipif(not (MOTORWAY / "fcd.xml.gz").is_file() or not (JUNCTION / "fcd.xml.gz").is_file(),
+                                    reason="SUMO fixtures tests/data/sumo/{motorway,junction}_s1 not present")
+TYPES = ('<vType id="car" vClass="passenger" length="4.6" width="1.8"/>',
+         '<vType id="bike" vClass="bicycle" length="1.6" width="0.65"/>')
+
+
+def write_run(folder: Path, rows: list[dict], changes: list[tuple] = ()) -> Path:
+    """A minimal SUMO run folder: routes with two vTypes, FCD of ``rows`` (see ``v``) and lanechange records
+    ``(vehicle, time, from, to)``."""
+    folder.mkdir(parents=True)
+    (folder / "routes.rou.xml").write_text("<routes>\n" + "\n".join(TYPES) + "\n</routes>\n")
+    lines = ["<fcd-export>"]
+    for t in sorted({r["t"] for r in rows}):
+        lines.append(f'    <timestep time="{t:.2f}">')
+        for r in (r for r in rows if r["t"] == t):
+            lines.append(
+                f'        <vehicle id="{r["id"]}" type="{r["type"]}" x="{r["x"]:.2f}" y="{r["y"]:.2f}" '
+                f'angle="{r["angle"]:.2f}" speed="{r["speed"]:.2f}" acceleration="0.00" lane="{r["lane"]}" '
+                f'pos="0.00" leaderID="{r["leader"]}" leaderSpeed="-1.00" leaderGap="{r["gap"]:.2f}"/>')
+        lines.append("    </timestep>")
+    (folder / "fcd.xml").write_text("\n".join([*lines, "</fcd-export>", ""]))
+    (folder / "lanechange.xml").write_text("\n".join(
+        ["<lanechanges>", *(f'    <change id="{v}" type="car" time="{t:.2f}" from="{a}" to="{b}" dir="1"/>'
+                            for v, t, a, b in changes), "</lanechanges>", ""]))
+    return folder
+
+
+def v(t: float, vid: str, x: float, speed: float, lane: str, kind: str = "car", y: float = 0.0,
+      leader: str = "", gap: float = -1.0) -> dict:
+    """One FCD vehicle row heading east (angle 90); x is the front bumper."""
+    return {"t": t, "id": vid, "type": kind, "x": x, "y": y, "angle": 90.0, "speed": speed, "lane": lane,
+            "leader": leader, "gap": gap}
+
+
+def steps(t0: float, t1: float) -> list[float]:
+    return [round(i * 0.1, 2) for i in range(round(t0 * 10), round(t1 * 10) + 1)]
+
+
+def spans(labels: pl.DataFrame, scenario: str) -> list[tuple]:
+    return [(r["ego_id"], r["actor_id"], round(r["start_s"], 2), round(r["end_s"], 2)) for r in
+            labels.filter(pl.col("scenario") == scenario).sort("ego_id", "actor_id", "start_s").iter_rows(named=True)]
+
+
+# ----------------------------------------------------------------------------------------- hand-written runs
+
+def test_follower_islands_cut_at_the_ego_lane_change(tmp_path):
+    rows = []
+    for t in steps(0, 6):
+        rows += [
+            v(t, "E", 100 + 20 * t, 20, "e_0" if t < 2 else "e_1"),
+            v(t, "A", 70 + 20 * t, 20, "e_0", leader="E" if t <= 5 else "", gap=25.4 if t <= 5 else -1),  # 1.27 s
+            v(t, "B", 60 + 20 * t, 20, "e_0", kind="bike", leader="E", gap=20),  # a bicycle is no vehicle_actor
+            v(t, "C", 20 * t, 20, "e_0", leader="E", gap=120),                    # 6 s: too far
+            v(t, "D", 50 + 20 * t, 20, "e_0", leader="E" if t <= 0.9 else "", gap=20 if t <= 0.9 else -1),  # 0.9 s
+        ]
+    labels = label_sumo(write_run(tmp_path / "run", rows, [("E", 2.0, "e_0", "e_1")]), ["follower_vehicle"])
+    assert spans(labels, "follower_vehicle") == [("E", "A", 0.0, 1.9), ("E", "A", 2.0, 5.0)]
+    assert labels.schema == pl.Schema(LABEL_SCHEMA) and set(labels["drive_id"]) == {"run"}
+    # the headway limit is a parameter: at most 1 s drops A (1.27 s) and keeps nobody
+    tight = label_sumo(tmp_path / "run", ["follower_vehicle"], {"max_distance_from_sut_in_time_units": "1s"})
+    assert tight.is_empty()
+
+
+def test_cut_out_phases_and_edge_boundary(tmp_path):
+    rows, changes = [], [("E", 5.0, "e_0", "e_1"), ("A", 7.5, "f_0", "f_1"),
+                         ("E2", 5.0, "e_0", "e_1"), ("E2", 5.5, "e_1", "e_2")]
+    for t in steps(0, 9):
+        # E follows A at 1 s headway, changes to e_1 at 5.0 s and moves on to edge f (lane f_1) at 7.0 s
+        e_lane = "e_0" if t < 5 else ("e_1" if t < 7 else "f_1")
+        a_lane = "e_0" if t < 6.5 else ("f_0" if t < 7.5 else "f_1")
+        e2_lane = "e_0" if t < 5 else ("e_1" if t < 5.5 else "e_2")
+        rows += [
+            v(t, "E", 20 * t, 20, e_lane, leader="A" if t < 5 else "", gap=20 if t < 5 else -1),
+            # A reaches edge f at 6.5 s, before E (lanes are compared on E's edge), and changes lanes at 7.5 s
+            v(t, "A", 24.6 + 20 * t, 20, a_lane),
+            # E2 changes twice: its second phase lasts 0.4 s
+            v(t, "E2", 1000 + 20 * t, 20, e2_lane, leader="A2" if t < 5 else "", gap=20 if t < 5 else -1),
+            v(t, "A2", 1024.6 + 20 * t, 20, "e_0"),
+        ]
+    labels = label_sumo(write_run(tmp_path / "run", rows, changes), ["sut_cut_out"])
+    # phase 1: the last 3 s before the change (frames 1.9 .. 4.9); phase 2 from the change until A's lane change
+    assert spans(labels, "sut_cut_out") == [("E", "A", 1.9, 7.4)]
+    assert "e_0 -> e_1 at 5.0 s" in labels["source"][0]
+    # phase 2 at most 2 s keeps its first 2 s
+    short = label_sumo(tmp_path / "run", ["sut_cut_out"], {"max_ego_on_side_of_npc_phase_duration": "2s"})
+    assert spans(short, "sut_cut_out") == [("E", "A", 1.9, 7.0)]
+
+
+def test_cyclist_pieces_and_distance_band(tmp_path):
+    rows = []
+    for t in steps(0, 7):
+        # boxes along +x: E's centre at 10 t, y 0; the bike's centre beside it 2 m to the left: gap 0.775 m
+        rows += [
+            v(t, "E", 10 * t + 2.3, 10, "e_0"),
+            v(t, "C", 10 * t + 0.8, 10, "e_0", kind="bike", y=2.0),
+            v(t, "C2", 10 * t + 0.8, 10, "e_0", kind="bike", y=8.0),  # 6.775 m
+            v(t, "S", 502.3, 1.0, "e_0"),                              # below 5 kph
+            v(t, "C3", 500.8, 0.0, "e_0", kind="bike", y=2.0),
+        ]
+    labels = label_sumo(write_run(tmp_path / "run", rows), ["cyclist_close_to_moving_sut"])
+    assert spans(labels, "cyclist_close_to_moving_sut") == [("E", "C", 0.0, 5.0), ("E", "C", 5.1, 7.0)]
+    wider = label_sumo(tmp_path / "run", ["cyclist_close_to_moving_sut"], {"max_distance_from_cyclist": "7m"})
+    assert {r[1] for r in spans(wider, "cyclist_close_to_moving_sut")} == {"C", "C2"}
+
+
+def test_box_distance_matches_shapely():
+    rng = np.random.default_rng(7)
+    n = 2000
+    a = box_corners(rng.uniform(-5, 5, n), rng.uniform(-5, 5, n), rng.uniform(-np.pi, np.pi, n),
+                    rng.uniform(0.5, 17, n), rng.uniform(0.4, 2.6, n))
+    b = box_corners(rng.uniform(-5, 5, n), rng.uniform(-5, 5, n), rng.uniform(-np.pi, np.pi, n),
+                    rng.uniform(0.5, 3, n), rng.uniform(0.4, 1, n))
+    expected = shapely.distance(shapely.polygons(a), shapely.polygons(b))
+    assert (expected == 0).sum() > 100 and (expected > 0).sum() > 100  # both cases are exercised
+    np.testing.assert_allclose(box_distance_m(a, b), expected, atol=1e-9)
+
+
+def test_errors_name_the_fix(tmp_path):
+    with pytest.raises(ScenarioError, match="no labeller for scenario 'sut_cut_in'"):
+        label_sumo(tmp_path, ["sut_cut_in"])
+    with pytest.raises(ScenarioError, match="no labelled scenario has a parameter 'max_distance'"):
+        label_sumo(tmp_path, ["follower_vehicle"], {"max_distance": "3m"})
+    run = write_run(tmp_path / "run", [v(t, "E", t, 1, "e_0") for t in steps(0, 1)])
+    (run / "lanechange.xml").unlink()
+    with pytest.raises(InputError, match="no lane-change output file.*--lanechange-output"):
+        label_sumo(run)
+
+
+# ------------------------------------------------------------------------------------------- SUMO fixtures
+
+@pytest.fixture(scope="module")
+def fixture_labels() -> dict[str, pl.DataFrame]:
+    return {run.name: label_sumo(run) for run in (MOTORWAY, JUNCTION)}
+
+
+def _fcd(run: Path) -> pl.DataFrame:
+    return read_fcd(run / "fcd.xml.gz").join(read_vtypes(run), on="type_id")
+
+
+def _changes(run: Path) -> pl.DataFrame:
+    return _xml_records(run / "lanechange.xml.gz", "change", ("id", "time", "from", "to"), "</lanechanges>").select(
+        ego_id="id", tc=pl.col("time").cast(pl.Float64))
+
+
+@needs_fixtures
+def test_fixture_label_counts(fixture_labels):
+    counts = {run: dict(labels.group_by("scenario").len().iter_rows()) for run, labels in fixture_labels.items()}
+    assert counts["motorway_s1"].get("follower_vehicle", 0) > 100 and counts["motorway_s1"].get("sut_cut_out", 0) > 10
+    assert "cyclist_close_to_moving_sut" not in counts["motorway_s1"]  # no bicycles on the motorway
+    assert counts["junction_s1"].get("cyclist_close_to_moving_sut", 0) > 10
+
+
+@needs_fixtures
+@pytest.mark.parametrize("run", [MOTORWAY, JUNCTION], ids=lambda p: p.name)
+def test_fixture_followers_are_sumo_leaders(run, fixture_labels):
+    labels = fixture_labels[run.name].filter(pl.col("scenario") == "follower_vehicle").with_row_index("label")
+    fcd = _fcd(run)
+    frames = labels.join(fcd, left_on="actor_id", right_on="vehicle_id").filter(
+        pl.col("t_s").is_between(pl.col("start_s") - 1e-6, pl.col("end_s") + 1e-6))
+    n_frames = ((labels["end_s"] - labels["start_s"]) * 10).round().cast(pl.Int64) + 1
+    assert frames.height == n_frames.sum()  # every frame of every label is an FCD row of the actor
+    assert (frames["leader_id"] == frames["ego_id"]).all()
+    headway = frames["leader_gap_m"] / frames["speed_mps"]
+    assert ((frames["speed_mps"] > 0) & (headway >= 0) & (headway <= 5 + 1e-9)).all()
+    assert frames["kind"].is_in(["vehicle", "truck"]).all()
+    assert (labels["end_s"] - labels["start_s"] >= 1 - 1e-9).all()
+    # the ego keeps its lane: no lane change of the ego inside a label (after its first frame)
+    inside = labels.join(_changes(run), on="ego_id").filter(
+        (pl.col("tc") > pl.col("start_s") + 1e-6) & (pl.col("tc") <= pl.col("end_s") + 1e-6))
+    assert inside.is_empty()
+
+
+@needs_fixtures
+@pytest.mark.parametrize("run", [MOTORWAY, JUNCTION], ids=lambda p: p.name)
+def test_fixture_cut_outs_hold_an_ego_lane_change(run, fixture_labels):
+    labels = fixture_labels[run.name].filter(pl.col("scenario") == "sut_cut_out").with_row_index("label")
+    assert labels.height
+    changes = labels.join(_changes(run), on="ego_id").filter(
+        (pl.col("tc") >= pl.col("start_s") + 1 - 1e-6) & (pl.col("tc") <= pl.col("end_s") - 1 + 1e-6))
+    assert changes["label"].n_unique() == labels.height  # phase 1 and phase 2 last at least 1 s around it
+    assert (labels["end_s"] - labels["start_s"] <= 6.1 + 1e-9).all()
+    fcd = _fcd(run).select("t_s", "vehicle_id", "leader_id", "lane_id")
+    # just before the change the ego's SUMO leader is the actor; at the change the ego is on another lane
+    first = changes.sort("label", "tc").unique("label", keep="first")
+    before = first.join(fcd, left_on=["ego_id", (pl.col("tc") - 0.1).round(2)], right_on=["vehicle_id", "t_s"])
+    assert before.height == labels.height and (before["leader_id"] == before["actor_id"]).all()
+    at = (first.join(fcd, left_on=["ego_id", "tc"], right_on=["vehicle_id", "t_s"])
+          .join(fcd, left_on=["actor_id", "tc"], right_on=["vehicle_id", "t_s"], suffix="_actor"))
+    assert at.height == labels.height and (at["lane_id"] != at["lane_id_actor"]).all()
+
+
+@needs_fixtures
+def test_fixture_cyclist_distances_recomputed_with_shapely(fixture_labels):
+    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == "cyclist_close_to_moving_sut")
+    assert (labels["end_s"] - labels["start_s"] <= 5 + 1e-9).all()
+    sample = labels.sample(n=min(40, labels.height), seed=1)
+    fcd = _fcd(JUNCTION)
+    frames = (sample.join(fcd, left_on="ego_id", right_on="vehicle_id")
+              .filter(pl.col("t_s").is_between(pl.col("start_s") - 1e-6, pl.col("end_s") + 1e-6))
+              .join(fcd, left_on=["actor_id", "t_s"], right_on=["vehicle_id", "t_s"], suffix="_c"))
+    assert frames["vclass_c"].eq("bicycle").all() and frames["vclass"].ne("bicycle").all()
+    assert (frames["speed_mps"] >= 5 / 3.6 - 1e-9).all()
+
+    def boxes(suffix: str) -> np.ndarray:
+        h = np.radians(90.0 - frames["angle_deg" + suffix].to_numpy())
+        length, width = frames["length_m" + suffix].to_numpy(), frames["width_m" + suffix].to_numpy()
+        cx = frames["x_m" + suffix].to_numpy() - length / 2 * np.cos(h)
+        cy = frames["y_m" + suffix].to_numpy() - length / 2 * np.sin(h)
+        return np.array([shapely.affinity.rotate(shapely.box(x - l / 2, y - w / 2, x + l / 2, y + w / 2),
+                                                 math.degrees(a), origin=(x, y))
+                         for x, y, a, l, w in zip(cx, cy, h, length, width, strict=True)])
+
+    distance = shapely.distance(boxes(""), boxes("_c"))
+    assert len(distance) > 40 and (distance <= 5 + 1e-6).all()
+
+
+@needs_fixtures
+def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
+    from logiq_sql.evaluate import add_evaluate_parser, evaluate
+    from logiq_sql.ingestion import ingest
+    from logiq_sql.match import match
+
+    parser = argparse.ArgumentParser(prog="logiq-sql")
+    sub = parser.add_subparsers(dest="command")
+    add_label_parser(sub)
+    add_evaluate_parser(sub)
+    out = tmp_path / "labels.parquet"
+    args = parser.parse_args(["label", "sumo", str(JUNCTION), "--out", str(out)])
+    assert args.func(args) == 0
+    labels = pl.read_parquet(out)
+    assert f"{labels.height} label(s) of 1 run(s)" in capsys.readouterr().out
+    assert labels.schema == pl.Schema(LABEL_SCHEMA)
+    db = tmp_path / "j.duckdb"
+    ingest("sumo", [JUNCTION], db)
+    match(db, ego="every:4")
+    result = evaluate(db, out)
+    assert set(result.scores["scenario"]) == {"follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"}
+    events = result.events.group_by("scenario", "role").len()
+    assert events["len"].sum() == result.scores["labels"].sum() + result.scores["predictions"].sum()
+    for col in ("precision", "recall", "f1", "ba_timestamp", "tpr", "tnr"):
+        assert result.scores[col].drop_nulls().is_between(0, 1).all()
+    assert any("the matcher did not use" in n for n in result.notes)
