@@ -26,6 +26,14 @@ demo: venv
 	@echo; echo "Coverage of follower_vehicle, ego_speed_at_start (mph):"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select bucket, hits from coverage where scenario = 'follower_vehicle' \
 	  and item = 'ego_speed_at_start' order by bucket_index nulls last"
+	@echo; echo "Ego cut-outs (sut_cut_out), with both phases and the coverage sampled at the lane change:"
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 6 "select m.drive_id, m.ego_id, m.actor_id, \
+	  max(case when p.phase_index = 1 then p.start_s end) as follow_from_s, \
+	  max(case when p.phase_index = 2 then p.start_s end) as lane_change_s, m.end_s, \
+	  round(k.speed_at_change_lane_kph, 1) as npc_kph, round(k.distance_at_change_lane_m, 1) as gap_m, \
+	  k.side_of_npc_relative_to_ego_at_lane_change as npc_side \
+	  from matches m join match_phases p using (match_id) join kpis k using (match_id) \
+	  where m.scenario = 'sut_cut_out' group by all order by m.drive_id, m.ego_id limit 6"
 	@echo; echo "Cyclist matches (nuScenes); the closest moving cyclist of the bundled scenes passes 5.2 m away:"
 	@$(BIN)/logiq-sql match --db $(DEMO_DB) --scenario cyclist_close_to_moving_sut --set max_distance_from_cyclist=6m --quiet
 	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/"
