@@ -66,14 +66,19 @@ def test_phase_minimum_durations(tmp_path):
     assert intervals(match(short_side, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
 
 
+def split_road(x_m: float) -> tuple[list[dict], list[dict]]:
+    """The two-lane road split at x_m into segments A (lanes A1, A2) and B (B1, B2), linked A -> B."""
+    lanes = [lane("A1", 0.0, 0.0, x_m, left="A2"), lane("A2", LANE_W, 0.0, x_m, right="A1"),
+             lane("B1", 0.0, x_m, 2000.0, left="B2"), lane("B2", LANE_W, x_m, 2000.0, right="B1")]
+    successors = [{"map_id": "road", "lane_id": a, "successor_id": b, "turn": None} for a, b in (("A1", "B1"), ("A2", "B2"))]
+    return lanes, successors
+
+
 def test_lane_change_across_a_segment_boundary(tmp_path):
     t = times(10.0)
     # each lane is split at x = 151.5 (A -> B); the ego changes lanes while it crosses the boundary, so its
     # best lane goes A1 -> A2 -> B2, and the actor, already on B1, stays in its lane
-    lanes = [lane("A1", 0.0, 0.0, 151.5, left="A2"), lane("A2", LANE_W, 0.0, 151.5, right="A1"),
-             lane("B1", 0.0, 151.5, 2000.0, left="B2"), lane("B2", LANE_W, 151.5, 2000.0, right="B1")]
-    successors = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A1", "B1"), ("A2", "B2"))]
-    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), lanes, successors)
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), *split_road(151.5))
     assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.2, 8.3)]
 
 
@@ -81,8 +86,5 @@ def test_actor_crossing_a_segment_boundary_while_the_ego_is_beside_it(tmp_path):
     t = times(10.0)
     # the boundary is at x = 190: the actor crosses it at t = 6 s, the ego only at t = 9 s; during phase 2 the
     # actor is on B1 while the ego is still on A2, which is still beside it
-    lanes = [lane("A1", 0.0, 0.0, 190.0, left="A2"), lane("A2", LANE_W, 0.0, 190.0, right="A1"),
-             lane("B1", 0.0, 190.0, 2000.0, left="B2"), lane("B2", LANE_W, 190.0, 2000.0, right="B1")]
-    successors = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A1", "B1"), ("A2", "B2"))]
-    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), lanes, successors)
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), *split_road(190.0))
     assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.2, 8.3)]
