@@ -21,7 +21,7 @@ import numpy as np
 import polars as pl
 
 from logiq_sql.errors import InputError, ScenarioError, did_you_mean
-from logiq_sql.readers.sumo import _dt, _one, _xml_records, read_fcd, read_vtypes, run_folders
+from logiq_sql.readers.sumo import read_fcd, read_vtypes, run_file, run_folders, sample_period_s, xml_records
 from logiq_sql.scenario import load_scenario
 from logiq_sql.schema import VEHICLE_KINDS
 
@@ -77,18 +77,18 @@ def load_run(folder: str | Path) -> tuple[str, float, pl.DataFrame, pl.DataFrame
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder; pass a SUMO run folder (logiq-sql simulate writes one).")
-    fcd_path = _one(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
+    fcd_path = run_file(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
                     "run sumo with --fcd-output fcd.xml.gz and the leader attributes (logiq-sql simulate does).")
-    lc_path = _one(folder, ("lanechange*.xml", "lanechange*.xml.gz"), "lane-change output",
+    lc_path = run_file(folder, ("lanechange*.xml", "lanechange*.xml.gz"), "lane-change output",
                    "run sumo with --lanechange-output lanechange.xml.gz (logiq-sql simulate does).")
     if not _has_leaders(fcd_path):
         raise InputError(f"{fcd_path}: the FCD has no leaderID/leaderGap attributes. Fix: run sumo with "
                          "--fcd-output.attributes including leaderID,leaderSpeed,leaderGap and "
                          "--fcd-output.max-leader-distance 250, as XML (logiq-sql simulate does).")
     fcd = read_fcd(fcd_path, _FCD_COLUMNS)
-    dt = _dt(fcd, fcd_path)
+    dt = sample_period_s(fcd, fcd_path)
     vtypes = read_vtypes(folder).select("type_id", "vclass", "kind", "length_m", "width_m")
-    changes = _xml_records(lc_path, "change", ("id", "time", "from", "to"), "</lanechanges>").select(
+    changes = xml_records(lc_path, "change", ("id", "time", "from", "to"), "</lanechanges>").select(
         vehicle_id=pl.col("id"), t_s=pl.col("time").cast(pl.Float64), from_lane=pl.col("from"),
         to_lane=pl.col("to"),
     ).with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64))

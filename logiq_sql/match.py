@@ -32,6 +32,7 @@ OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
 RELATION_STEPS = (
     ("lane_neighbours", "relations/lane_neighbours.sql"),
+    ("lane_line", "relations/lane_line.sql"),
     ("actor_lanes", "relations/actor_lanes.sql"),
     ("ego_lanes", "relations/ego_lanes.sql"),
     ("relations", "relations/relations.sql"),

@@ -14,7 +14,7 @@ import shapely.affinity
 
 from logiq_sql.errors import InputError, ScenarioError
 from logiq_sql.labels import LABEL_SCHEMA, add_label_parser, box_corners, box_distance_m, label_sumo
-from logiq_sql.readers.sumo import _xml_records, read_fcd, read_vtypes
+from logiq_sql.readers.sumo import read_fcd, read_vtypes, xml_records
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests/data/sumo"
@@ -159,7 +159,7 @@ def _fcd(run: Path) -> pl.DataFrame:
 
 
 def _changes(run: Path) -> pl.DataFrame:
-    return _xml_records(run / "lanechange.xml.gz", "change", ("id", "time", "from", "to"), "</lanechanges>").select(
+    return xml_records(run / "lanechange.xml.gz", "change", ("id", "time", "from", "to"), "</lanechanges>").select(
         ego_id="id", tc=pl.col("time").cast(pl.Float64))
 
 

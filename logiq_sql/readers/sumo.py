@@ -141,7 +141,8 @@ def _is_run(folder: Path) -> bool:
     return folder.is_dir() and any(f.is_file() and _is_run_file(f.name) for f in folder.iterdir())
 
 
-def _one(folder: Path, patterns: tuple[str, ...], what: str, fix: str, required: bool = True) -> Path | None:
+def run_file(folder: Path, patterns: tuple[str, ...], what: str, fix: str, required: bool = True) -> Path | None:
+    """The one file of a run folder matching ``patterns`` (None if absent and not required)."""
     files = sorted({f for p in patterns for f in folder.glob(p) if f.is_file()})
     if len(files) > 1:
         raise InputError(f"{folder}: {len(files)} {what} files ({', '.join(f.name for f in files)}); a run folder "
@@ -211,7 +212,7 @@ def _attr(name: str) -> pl.Expr:
     return pl.col("line").str.extract(rf'\s{name}="([^"]*)"')
 
 
-def _xml_records(path: Path, element: str, attrs: Iterable[str], closing: str,
+def xml_records(path: Path, element: str, attrs: Iterable[str], closing: str,
                  time_tag: str | None = None) -> pl.DataFrame:
     """The attributes (strings) of every line that opens an ``element`` (a regex) in a SUMO output, plus
     ``time`` forward-filled from the enclosing ``<time_tag time>`` lines. Vectorised: no Python object per
@@ -251,7 +252,7 @@ def read_fcd(path: str | Path, columns: Iterable[str] = FCD_COLUMNS) -> pl.DataF
     wanted = [c for c in _FCD if c[0] in set(columns)]
     if path.name.endswith(".parquet"):
         return _read_fcd_parquet(path, wanted)
-    raw = _xml_records(path, "vehicle|person", [fcd for _, fcd, _, _ in wanted], "</fcd-export>", "timestep")
+    raw = xml_records(path, "vehicle|person", [fcd for _, fcd, _, _ in wanted], "</fcd-export>", "timestep")
     return _typed(raw, {fcd: name for name, fcd, _, _ in wanted}, {name: dtype for name, _, _, dtype in wanted})
 
 
@@ -331,7 +332,8 @@ def _tracks(fcd: pl.DataFrame, vtypes: pl.DataFrame, drive_id: str, dt: float) -
     return tracks.cast(schema.TRACKS.polars_schema), unknown.height, reason
 
 
-def _dt(fcd: pl.DataFrame, path: Path) -> float:
+def sample_period_s(fcd: pl.DataFrame, path: Path) -> float:
+    """The run's step: the median gap between FCD timesteps."""
     steps = fcd["t_s"].drop_nulls().unique().sort().diff().drop_nulls()
     steps = steps.filter(steps > 0)
     if steps.is_empty():
@@ -428,7 +430,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
 def _light_states(path: Path | None, drive_id: str, dt: float, max_frame: int) -> pl.DataFrame:
     if path is None:
         return schema.empty(schema.TRAFFIC_LIGHT_STATES)
-    recs = _xml_records(path, "tlsState", ("time", "id", "state"), "</tlsStates>")
+    recs = xml_records(path, "tlsState", ("time", "id", "state"), "</tlsStates>")
     recs = recs.select(
         pl.col("id"), (pl.col("time").cast(pl.Float64, strict=False) / dt).round().cast(pl.Int64).alias("frame"),
         pl.col("state").str.split("").alias("code"),
@@ -458,15 +460,15 @@ def read_sumo(path: str | Path) -> Iterator[DriveData]:
 def _read_run(folder: Path) -> DriveData:
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder; pass a SUMO run folder (network, route files, FCD).")
-    net = _one(folder, ("*.net.xml", "*.net.xml.gz"), "SUMO network",
+    net = run_file(folder, ("*.net.xml", "*.net.xml.gz"), "SUMO network",
                "copy the network the run used (e.g. network.net.xml.gz) into the folder.")
-    fcd_path = _one(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
+    fcd_path = run_file(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
                     "run sumo with --fcd-output fcd.xml.gz (logiq-sql simulate does).")
-    tls_path = _one(folder, ("tls_states*.xml", "tls_states*.xml.gz"), "signal state", "", required=False)
+    tls_path = run_file(folder, ("tls_states*.xml", "tls_states*.xml.gz"), "signal state", "", required=False)
     map_id, (lanes, successors, junctions, lights) = _net(net)
     vtypes = read_vtypes(folder)
     fcd = read_fcd(fcd_path, _TRACK_FCD_COLUMNS)
-    dt = _dt(fcd, fcd_path)
+    dt = sample_period_s(fcd, fcd_path)
     drive_id = folder.name
     tracks, rejected, reason = _tracks(fcd, vtypes, drive_id, dt)
     max_frame = int(tracks["frame"].max()) if tracks.height else 0

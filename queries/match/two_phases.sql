@@ -31,7 +31,8 @@ joined as (
 ),
 
 trimmed as (
-    -- the frames of the ego within the maximum duration of each phase, counted from the transition
+    -- the frames of the ego within the maximum duration of each phase, counted from the transition (frame and
+    -- t_s grow together, so the least frame has the least t_s)
     select
         j.drive_id,
         j.ego_id,
@@ -41,7 +42,9 @@ trimmed as (
         j.p2_start_frame,
         j.p2_start_s,
         min(e.frame) as p1_start_frame,
-        max(e.frame) as p2_end_frame
+        min(e.t_s) as p1_start_s,
+        max(e.frame) as p2_end_frame,
+        max(e.t_s) as p2_end_s
     from joined as j
     inner join tracks as e
         on j.drive_id = e.drive_id and j.ego_id = e.actor_id
@@ -55,18 +58,6 @@ trimmed as (
             or e.t_s <= j.p2_start_s + $phase_2_max_duration_s + 1e-6
         )
     group by j.drive_id, j.ego_id, j.actor_id, j.p1_end_frame, j.p1_end_s, j.p2_start_frame, j.p2_start_s
-),
-
-timed as (
-    select
-        t.*,
-        s.t_s as p1_start_s,
-        e.t_s as p2_end_s
-    from trimmed as t
-    inner join tracks as s
-        on t.drive_id = s.drive_id and t.ego_id = s.actor_id and t.p1_start_frame = s.frame
-    inner join tracks as e
-        on t.drive_id = e.drive_id and t.ego_id = e.actor_id and t.p2_end_frame = e.frame
 )
 
 select
@@ -85,6 +76,6 @@ select
     p2_end_frame,
     p2_start_s,
     p2_end_s
-from timed
+from trimmed
 where p1_end_s - p1_start_s >= $phase_1_min_duration_s - 1e-6
     and p2_end_s - p2_start_s >= $phase_2_min_duration_s - 1e-6

@@ -1,6 +1,6 @@
 -- relations: ego_lanes
 -- grain: one row per (drive_id, ego_id, frame): the ego's lane and its lane run
--- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lanes, lane_successors, lane_neighbours
+-- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $lane_calculation_tolerance_length_m
 --
 -- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
@@ -92,21 +92,15 @@ pending as (
     window w as (partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row)
 ),
 
-lane_line as (
-    -- a lane and the lanes that continue it: its direct successors and predecessors
-    select map_id, lane_id, lane_id as line_lane_id from lanes
-    union all
-    select map_id, lane_id, successor_id as line_lane_id from lane_successors
-    union all
-    select map_id, successor_id as lane_id, lane_id as line_lane_id from lane_successors
-),
-
 old_lane as (
     -- per frame after a transition: is the ego (back) in the lane it came from, and how far from it is it
     select
         p.drive_id,
         p.ego_id,
         p.frame,
+        p.lane_id,
+        p.transition_frame,
+        p.side,
         max(case when p.lane_id = l.line_lane_id then 1 else 0 end) as back_in_old_lane,
         min(tl.dist_m) as old_lane_dist_m
     from pending as p
@@ -115,40 +109,36 @@ old_lane as (
     left join track_lanes as tl
         on p.drive_id = tl.drive_id and p.ego_id = tl.actor_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
     where p.transition_frame is not null
-    group by p.drive_id, p.ego_id, p.frame
+    group by p.drive_id, p.ego_id, p.frame, p.lane_id, p.transition_frame, p.side
 ),
 
 returns as (
     select
-        p.drive_id,
-        p.ego_id,
-        p.transition_frame,
-        min(p.frame) as return_frame
-    from pending as p
-    inner join old_lane as o
-        on p.drive_id = o.drive_id and p.ego_id = o.ego_id and p.frame = o.frame
-    where o.back_in_old_lane = 1 and p.frame > p.transition_frame
-    group by p.drive_id, p.ego_id, p.transition_frame
+        drive_id,
+        ego_id,
+        transition_frame,
+        min(frame) as return_frame
+    from old_lane
+    where back_in_old_lane = 1 and frame > transition_frame
+    group by drive_id, ego_id, transition_frame
 ),
 
 changes as (
     -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
     -- tolerance away from the old lane (and from the lanes that continue it)
     select
-        p.drive_id,
-        p.ego_id,
-        p.side,
-        min(p.frame) as frame
-    from pending as p
-    inner join old_lane as o
-        on p.drive_id = o.drive_id and p.ego_id = o.ego_id and p.frame = o.frame
+        o.drive_id,
+        o.ego_id,
+        o.side,
+        min(o.frame) as frame
+    from old_lane as o
     left join returns as r
-        on p.drive_id = r.drive_id and p.ego_id = r.ego_id and p.transition_frame = r.transition_frame
-    where p.lane_id is not null
-        and (r.return_frame is null or p.frame < r.return_frame)
+        on o.drive_id = r.drive_id and o.ego_id = r.ego_id and o.transition_frame = r.transition_frame
+    where o.lane_id is not null
+        and (r.return_frame is null or o.frame < r.return_frame)
         and o.back_in_old_lane = 0
         and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
-    group by p.drive_id, p.ego_id, p.transition_frame, p.side
+    group by o.drive_id, o.ego_id, o.transition_frame, o.side
 )
 
 select

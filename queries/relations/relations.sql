@@ -1,6 +1,6 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
--- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_successors
+-- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $relation_range_m, $object_relation_range_m
 --
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
@@ -15,7 +15,7 @@
 --   lat_gap_m           side-to-side gap along the ego y axis, same rule
 --   box_distance_m      closest distance between the two boxes, 0 when they overlap (separating-axis test);
 --                       otherwise the least corner-to-box distance over the 8 corners (exact for rectangles)
---   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor
+--   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor (lane_line)
 --   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours)
 --   closing_speed_mps   rate at which lon_gap shrinks: actor speed along the ego axis minus ego speed,
 --                       sign taken so that positive means closing
@@ -137,9 +137,7 @@ lane_relation as (
     select
         m.*,
         al.lane_id as actor_lane_id,
-        coalesce(
-            al.lane_id = m.ego_lane_id or ahead.lane_id is not null or behind.lane_id is not null, false
-        ) as same_lane,
+        line.lane_id is not null as same_lane,
         beside.side as adjacent_side
     from measured as m
     inner join drive_inputs as d
@@ -148,10 +146,8 @@ lane_relation as (
         on m.drive_id = al.drive_id and m.actor_id = al.actor_id and m.frame = al.frame
     left join lane_neighbours as beside
         on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
-    left join lane_successors as ahead
-        on d.map_id = ahead.map_id and m.ego_lane_id = ahead.lane_id and al.lane_id = ahead.successor_id
-    left join lane_successors as behind
-        on d.map_id = behind.map_id and al.lane_id = behind.lane_id and m.ego_lane_id = behind.successor_id
+    left join lane_line as line
+        on d.map_id = line.map_id and m.ego_lane_id = line.lane_id and al.lane_id = line.line_lane_id
 ),
 
 mttc_roots as (
