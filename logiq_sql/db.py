@@ -171,6 +171,12 @@ def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Colu
         f"{c.name} {_DUCK_TYPES[c.dtype]}{'' if c.nullable else ' NOT NULL'}" for c in columns
     )
     con.execute(f"create table if not exists {table.name} (\n    {cols}\n)")
+    # a file written by an earlier version gains the nullable columns added since (NULL in its old rows)
+    have = {r[0] for r in con.execute(
+        "select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' and database_name = current_database()", {"t": table.name}).fetchall()}
+    for c in columns:
+        if c.name not in have and c.nullable:
+            con.execute(f"alter table {table.name} add column {c.name} {_DUCK_TYPES[c.dtype]}")
     con.execute(f"comment on table {table.name} is {_quote(table.doc)}")
     for c in columns:
         con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")

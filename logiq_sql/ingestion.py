@@ -18,11 +18,12 @@ import polars as pl
 from logiq_sql import db, schema
 from logiq_sql.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.localise import locate
+from logiq_sql.readers.av2 import log_folders
 from logiq_sql.readers.base import DriveData
 from logiq_sql.readers.sumo import run_folders
 from logiq_sql.sql import query_text
 
-FORMATS = ("commonroad", "scenarionet", "parquet", "sumo")
+FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2")
 
 
 _SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
@@ -46,13 +47,16 @@ class IngestSummary:
 
 
 def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
-    """Files to read: each path as given, or the matching files inside a folder (sorted); for sumo, run folders."""
+    """Files to read: each path as given, or the matching files inside a folder (sorted); for sumo, run folders;
+    for av2, log and scenario folders."""
     out: list[Path] = []
     for p in map(Path, paths):
         if not p.exists():
             raise InputError(f"{p}: no such file or folder.")
         if fmt == "sumo":
             out += run_folders(p)
+        elif fmt == "av2":
+            out += log_folders(p)
         elif p.is_dir() and not (fmt == "parquet" and (p / "tracks.parquet").exists()):
             out += sorted(f for f in p.rglob("*") if f.is_file() and f.name.endswith(_SUFFIXES[fmt]))
         else:

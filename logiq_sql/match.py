@@ -22,6 +22,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql import db, units
+from logiq_sql.encroachment import encroachments
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
@@ -37,7 +38,15 @@ RELATION_STEPS = (
     ("ego_lanes", "relations/ego_lanes.sql"),
     ("relations", "relations/relations.sql"),
 )
-PERSISTED = ("relations", "ego_lanes")  # kept in the file for analysts, replaced per drive
+# junction geometry, for the scenarios that declare `junctions = true`; encroachments (shapely) come after them
+JUNCTION_STEPS = (
+    ("actor_paths", "junctions/actor_paths.sql"),
+    ("passages", "junctions/passages.sql"),
+    ("junction_frames", "junctions/junction_frames.sql"),
+    ("crossing_pairs", "junctions/crossing_pairs.sql"),
+)
+# kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive
+PERSISTED = ("relations", "ego_lanes", "passages", "encroachments")
 
 
 @dataclass
@@ -123,14 +132,25 @@ def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> 
         "object_relation_range_m": min(relation_range_m, OBJECT_RELATION_RANGE_M),
         "lane_calculation_tolerance_length_m": _lane_tolerance(s),
         "scenario": s.name, "scenario_version": s.version, "params_hash": s.params_hash(),
+        "phase_count": len(s.phases),
     }
 
 
+def phase_steps(s: Scenario) -> list[tuple[str, str]]:
+    """The steps from the relations to the scenario's matches (table, query)."""
+    if s.frames_query:
+        steps = [("phase_frames", s.frames_query), ("phase_islands", "match/phase_islands.sql")]
+    else:
+        steps = [(f"phase_{i}", p.query or "") for i, p in enumerate(s.phases, 1)]
+    return [*steps, ("scenario_match", s.match_query or "")]
+
+
 def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
-    steps = [("egos", "relations/egos.sql"), *RELATION_STEPS]
-    steps += [(f"phase_{i}", p.query) for i, p in enumerate(s.phases, 1)]
-    steps.append(("scenario_match", s.match_query or ""))
-    return steps
+    """Every SQL step of a scenario, in order. Junction scenarios also read ``encroachments``, which shapely
+    computes between crossing_pairs and the phases (logiq_sql/encroachment.py); rendered SQL reads the stored
+    table."""
+    return [("egos", "relations/egos.sql"), *RELATION_STEPS, *(JUNCTION_STEPS if s.junctions else ()),
+            *phase_steps(s)]
 
 
 def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "auto",
@@ -140,7 +160,9 @@ def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "a
     values = run_values(s, parse_ego(ego), units.parse(relation_range, "length", "--relation-range"))
     header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
               f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
-              "create or replace temp table run_drives as select drive_id from drive_inputs where status = 'ingested';\n")
+              + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match once first.\n"
+                 if s.junctions else "")
+              + "create or replace temp table run_drives as select drive_id from drive_inputs where status = 'ingested';\n")
     return header + render_steps(scenario_steps(s), values)
 
 
@@ -200,6 +222,20 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
                 have.add(column)
 
 
+def prepare_relations(con: duckdb.DuckDBPyConnection, group: list[Scenario], values: dict[str, object]) -> None:
+    """The steps every scenario of ``group`` (one lane tolerance) shares: egos, relations and, when one of them
+    needs it, the junction geometry and the encroachment areas."""
+    materialise(con, "egos", "relations/egos.sql", values)
+    for table, rel in RELATION_STEPS:
+        materialise(con, table, rel, values)
+    if any(s.junctions for s in group):
+        for table, rel in JUNCTION_STEPS:
+            materialise(con, table, rel, values)
+        con.register("_encroachments", encroachments(con))
+        con.execute("create or replace temp table encroachments as select * from _encroachments")
+        con.unregister("_encroachments")
+
+
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
           overrides: dict[str, str] | None = None, drives: list[str] | None = None,
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
@@ -231,10 +267,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         for s in chosen:
             by_tolerance.setdefault(_lane_tolerance(s), []).append(s)
         for tolerance, group in sorted(by_tolerance.items()):
-            shared = run_values(group[0], ego_values, range_m)
-            materialise(con, "egos", "relations/egos.sql", shared)
-            for table, rel in RELATION_STEPS:
-                materialise(con, table, rel, shared)
+            prepare_relations(con, group, run_values(group[0], ego_values, range_m))
             say(f"relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
             for s in group:
@@ -261,9 +294,8 @@ def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.
 
 
 def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str, object]):
-    for i, phase in enumerate(s.phases, 1):
-        materialise(con, f"phase_{i}", phase.query, values)
-    materialise(con, "scenario_match", s.match_query or "", values)
+    for table, rel in phase_steps(s):
+        materialise(con, table, rel, values)
     materialise(con, "scenario_matches", "match/identify.sql", values)
     matches = con.sql("select * from scenario_matches").pl()
     metrics = matches.select("match_id")
@@ -288,7 +320,8 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
     try:
         # the run's temp table shadows the stored one of the same name: name the file's catalog
         stored = '"' + con.execute("select current_database()").fetchall()[0][0].replace('"', '""') + '".main'
-        for table in PERSISTED:
+        made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
+        for table in (t for t in PERSISTED if t in made):
             con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")

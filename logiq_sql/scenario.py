@@ -26,7 +26,7 @@ from logiq_sql.schema import OBJECT_KINDS, VEHICLE_KINDS
 PARAM_TYPES = (*units.DIMENSIONS, "kinds")
 _TOP_KEYS = {
     "name", "description", "spec", "version", "abstract", "extends", "actors", "params", "phases",
-    "match", "kpi_queries", "kpis", "coverage",
+    "match", "kpi_queries", "kpis", "coverage", "junctions",
 }
 
 
@@ -54,13 +54,24 @@ class Param:
 
 
 @dataclass(frozen=True)
-class Phase:
-    """A phase: its query, and the names of the time parameters that limit its duration (if any)."""
+class Condition:
+    """One per-frame condition of a phase: the boolean column, the measured value it tests, and the test."""
 
     name: str
-    query: str
+    value: str
+    test: str
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A phase: its query (or, for scenarios with a ``[match] frames`` query, the conditions of that query
+    that make it hold), and the names of the time parameters that limit its duration (if any)."""
+
+    name: str
+    query: str | None
     min_duration: str | None = None
     max_duration: str | None = None
+    conditions: tuple[Condition, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -99,6 +110,8 @@ class Scenario:
     params: dict[str, Param]
     phases: tuple[Phase, ...]
     match_query: str | None
+    frames_query: str | None  # one query giving every phase's per-frame conditions (phase_1 .. phase_n)
+    junctions: bool  # the scenario needs the junction steps (queries/junctions/)
     kpi_queries: tuple[str, ...]
     kpis: tuple[Kpi, ...]
     coverage: tuple[CoverageItem, ...]
@@ -216,20 +229,30 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
     phases = tuple(_phase(p, params, f"{path} [[phases]] {p.get('name')}") for p in raw.get("phases", []))
     abstract = bool(raw.get("abstract", False))
     match = raw.get("match", {}).get("query")
+    frames = raw.get("match", {}).get("frames")
     if not abstract and (not phases or not match):
         raise ScenarioError(f"{path}: a concrete scenario needs [[phases]] and [match] query.")
+    for phase in phases:
+        if (phase.query is None) == (frames is None):
+            raise ScenarioError(f"{path}: phase {phase.name} needs a query, unless [match] frames gives the "
+                                "conditions of every phase (then no phase has its own query).")
+    if frames and (len(phases) > 4 or any(p.min_duration or p.max_duration for p in phases)):
+        raise ScenarioError(f"{path}: a scenario matched from [match] frames has at most 4 phases and no phase "
+                            "duration limits (queries/match/sequential.sql).")
     if not abstract:
         _check_samples(coverage.values(), phases, path)
     return Scenario(
         name=name, path=path, description=raw.get("description", ""), spec=raw.get("spec", ""),
         version=int(raw.get("version", 1)), abstract=abstract, lineage=tuple(lineage),
-        actors=dict(raw.get("actors", {})), params=params, phases=phases, match_query=match,
+        actors=dict(raw.get("actors", {})), params=params, phases=phases, match_query=match, frames_query=frames,
+        junctions=bool(raw.get("junctions", False)),
         kpi_queries=tuple(kpi_queries), kpis=tuple(kpis.values()), coverage=tuple(coverage.values()),
     )
 
 
 def _phase(p: dict, params: dict[str, Param], where: str) -> Phase:
-    phase = Phase(p["name"], p["query"], p.get("min_duration"), p.get("max_duration"))
+    conditions = tuple(Condition(c["name"], c["value"], c["test"]) for c in p.get("conditions", []))
+    phase = Phase(p["name"], p.get("query"), p.get("min_duration"), p.get("max_duration"), conditions)
     for limit in (phase.min_duration, phase.max_duration):
         if limit is not None and (limit not in params or params[limit].type != "time"):
             raise ScenarioError(f"{where}: duration limit '{limit}' must name a time parameter of the scenario."

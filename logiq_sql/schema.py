@@ -75,7 +75,7 @@ DRIVE_INPUTS = Table(
     "One row per drive that ingest saw, accepted or rejected, with where it came from.",
     (
         _c("drive_id", S, "Unique id of the drive in this database.", False),
-        _c("source_format", S, "The reader: commonroad, scenarionet, parquet or sumo.", False),
+        _c("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2.", False),
         _c("source_path", S, "File the drive was read from.", False),
         _c("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
         _c("dt_s", F, "Sample period in seconds."),
@@ -134,6 +134,8 @@ TRAFFIC_LIGHTS = Table(
         _c("map_id", S, "Map.", False),
         _c("light_id", S, "Light id.", False),
         _c("lane_id", S, "A lane this light governs (one row per lane).", False),
+        _c("direction", S, "The movements it governs: a comma-separated subset of left, straight, right, u_turn; "
+                           "NULL = every movement from the lane."),
         _c("x_m", F, "Light position, metres (NULL if unknown)."),
         _c("y_m", F, "Light position, metres (NULL if unknown)."),
     ),

@@ -15,7 +15,7 @@ class DriveData:
 
     Attributes:
         drive_id: unique id (e.g. the file stem or the scene name).
-        source_format: reader name (``commonroad``, ``scenarionet``, ``parquet``, ``sumo``).
+        source_format: reader name (``commonroad``, ``scenarionet``, ``parquet``, ``sumo``, ``av2``).
         source_path: the file it came from.
         dt_s: sample period, seconds.
         tracks: rows of ``schema.TRACKS`` (heading/speed/accel/size may be null: derived later).

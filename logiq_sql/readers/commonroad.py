@@ -40,7 +40,8 @@ Map (``map_id`` = ``drive_id``)
     with no such lanelet gives no row).
 
     traffic_lights: one row per (light, lanelet whose ``trafficLightRef`` -- directly under the lanelet or in
-    its ``stopLine`` -- names the light); x/y from the light's ``position/point`` when present. A light that no
+    its ``stopLine`` -- names the light); x/y from the light's ``position/point`` when present; direction from
+    its ``<direction>`` (leftStraight -> "left,straight", all or absent -> NULL = every movement). A light that no
     lanelet references has no row here (``lane_id`` is required) but still gets its states.
 
 Traffic light states
@@ -81,6 +82,9 @@ _KINDS = {
     "taxi": "vehicle",
 }
 _COLOURS = {"green": "green", "yellow": "yellow", "red": "red", "redYellow": "red_yellow", "inactive": "off"}
+# CommonRoad TrafficLightDirection -> the movements it governs (``all`` and unknown values: every movement)
+_DIRECTIONS = {"right": "right", "straight": "straight", "left": "left", "leftStraight": "left,straight",
+               "straightRight": "straight,right", "leftRight": "left,right", "all": None}
 _TURNS = (("successorsLeft", "left"), ("successorsStraight", "straight"), ("successorsRight", "right"))
 _SPEED_SIGNS = {"R2-1", "274", "MAX_SPEED"}
 _WKT_DIGITS = 4
@@ -301,10 +305,12 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
     lane_rows, succ_rows, light_rows = [], [], []
     polygons: dict[str, object] = {}
     light_pos: dict[str, tuple[float | None, float | None]] = {}
+    light_dir: dict[str, str | None] = {}
     for light in root.iterfind("trafficLight"):
         pt = light.find("position/point")
         xy = (_float(pt.findtext("x")), _float(pt.findtext("y"))) if pt is not None else (_NAN, _NAN)
         light_pos[light.get("id", "")] = tuple(v if math.isfinite(v) else None for v in xy)
+        light_dir[light.get("id", "")] = _DIRECTIONS.get((light.findtext("direction") or "all").strip())
     for ll in root.iterfind("lanelet"):
         lid = ll.get("id", "")
         left, right = _points(ll.find("leftBound")), _points(ll.find("rightBound"))
@@ -331,7 +337,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
         refs = [r.get("ref") for r in (*ll.iterfind("trafficLightRef"), *ll.iterfind("stopLine/trafficLightRef"))]
         for ref in dict.fromkeys(r for r in refs if r is not None):
             x, y = light_pos.get(ref, (None, None))
-            light_rows.append((map_id, ref, lid, x, y))
+            light_rows.append((map_id, ref, lid, light_dir.get(ref), x, y))
     junction_rows = []
     for jid, lanelets in members.items():
         geoms = [polygons[lid] for lid in lanelets if lid in polygons]

@@ -39,8 +39,8 @@ Map, from ``*.net.xml[.gz]`` (exactly one per folder)
     NULL.
     junctions: every junction except ``internal`` and ``dead_end`` ones, polygon = its ``shape``.
     traffic_lights: one light per controlled link: light_id = ``{tls id}:{link index}``; one row for the incoming
-    lane and one for the internal (via) lane the link leads onto; x/y = the stop line (end of the incoming lane's
-    centre line).
+    lane and one for the internal (via) lane the link leads onto; direction = the link's turn (as above, ``t`` ->
+    u_turn); x/y = the stop line (end of the incoming lane's centre line).
 
 Traffic-light states, from ``tls_states*.xml[.gz]`` (``SaveTLSStates``: ``<tlsState time id state>``)
     Character i of ``state`` is link i: one row per light (``{tls id}:{i}``) and frame, from its first record to
@@ -406,7 +406,8 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
         if con.get("tl") and con.get("linkIndex") not in (None, "-1"):
             light = f"{con.get('tl')}:{con.get('linkIndex')}"
             x, y = end_of.get(src, (None, None))
-            light_rows += [(map_id, light, lane, x, y) for lane in dict.fromkeys((src, con.get("via"))) if lane]
+            turn = _TURNS.get(con.get("dir", ""), "u_turn" if con.get("dir") == "t" else None)
+            light_rows += [(map_id, light, lane, turn, x, y) for lane in dict.fromkeys((src, con.get("via"))) if lane]
 
     junction_rows = []
     for jid, j in junctions.items():

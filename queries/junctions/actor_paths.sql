@@ -1,0 +1,48 @@
+-- junctions: actor_paths
+-- grain: one row per (drive_id, actor_id, frame) of the egos and of the actors related to them
+-- reads: egos, relations, tracks
+-- params: none
+--
+-- s_m is the distance the box centre has travelled since the actor's first row: a position along the actor's
+-- own path, so offsets from a junction's start and end are differences of s_m (the junction scenarios need
+-- no other actors).
+with
+
+actors as (
+    select drive_id, ego_id as actor_id from egos
+    union
+    select distinct drive_id, actor_id from relations
+),
+
+steps as (
+    select
+        t.drive_id,
+        t.actor_id,
+        t.frame,
+        t.t_s,
+        t.heading_rad,
+        sqrt(
+            power(t.x_m - lag(t.x_m) over w, 2) + power(t.y_m - lag(t.y_m) over w, 2)
+        ) as step_m
+    from tracks as t
+    inner join actors as a
+        on t.drive_id = a.drive_id and t.actor_id = a.actor_id
+    window w as (partition by t.drive_id, t.actor_id order by t.frame)
+),
+
+path as (
+    select
+        drive_id,
+        actor_id,
+        frame,
+        t_s,
+        heading_rad,
+        coalesce(sum(step_m) over (
+            partition by drive_id, actor_id order by frame rows between unbounded preceding and current row
+        ), 0.0) as s_m,
+        min(frame) over (partition by drive_id, actor_id) as first_frame,
+        max(frame) over (partition by drive_id, actor_id) as last_frame
+    from steps
+)
+
+select * from path

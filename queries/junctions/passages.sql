@@ -1,0 +1,217 @@
+-- junctions: passages
+-- grain: one row per (drive_id, actor_id, passage): one stay of an actor inside one junction
+-- reads: actor_paths, track_lanes, actor_lanes, lanes, lane_successors, drive_inputs
+-- params: none
+--
+-- Path positions s_m come from actor_paths.
+--   inside            the centre lies in a lane of the junction (track_lanes distance 0); of two junctions
+--                     whose lanes overlap there, the smaller id
+--   passage           consecutive inside frames of one junction; a new stay that starts less than 2 m of path
+--                     after the last one ended is the same passage (a stopped car on the junction boundary)
+--   entry_* / exit_*  the first and last frame inside, with the path position s there (to within one sample)
+--   entry_observed    the actor was seen outside the junction before it entered (else offsets from the start
+--                     and the entry leg are unknown); exit_observed likewise after it left
+--   entry_lane_id     the actor's lane at the last frame before entry that has one outside this junction
+--   exit_lane_id      its lane at the first such frame after exit
+--   entry_heading_rad heading at the last frame before entry (the inbound direction); exit_heading_rad at the
+--                     first frame after exit (the outbound direction)
+--   turn_from_map     the turn the map gives the connection from entry_lane_id to the junction lane that
+--                     leads on (directly or through one more junction lane) to exit_lane_id; NULL when the
+--                     map has no turn for it or gives two different ones
+--   turn_from_heading from the heading change d = exit_heading - entry_heading wrapped into (-180, 180]
+--                     degrees: |d| <= 30 straight, 30 < d < 150 left, -150 < d < -30 right, |d| >= 150 u_turn
+--   turn              turn_from_map where the map has it, else turn_from_heading; NULL when neither is known
+with
+
+inside as (
+    select
+        tl.drive_id,
+        tl.actor_id,
+        tl.frame,
+        min(l.junction_id) as junction_id
+    from track_lanes as tl
+    inner join (select distinct drive_id, actor_id from actor_paths) as a
+        on tl.drive_id = a.drive_id and tl.actor_id = a.actor_id
+    inner join drive_inputs as d
+        on tl.drive_id = d.drive_id
+    inner join lanes as l
+        on d.map_id = l.map_id and tl.lane_id = l.lane_id
+    where tl.dist_m = 0 and l.junction_id is not null
+    group by tl.drive_id, tl.actor_id, tl.frame
+),
+
+stays as (
+    -- islands of consecutive inside frames in one junction
+    select
+        p.*,
+        i.junction_id,
+        p.frame - row_number() over (partition by p.drive_id, p.actor_id, i.junction_id order by p.frame) as island
+    from actor_paths as p
+    inner join inside as i
+        on p.drive_id = i.drive_id and p.actor_id = i.actor_id and p.frame = i.frame
+),
+
+stay_bounds as (
+    select
+        drive_id,
+        actor_id,
+        junction_id,
+        min(frame) as entry_frame,
+        max(frame) as exit_frame,
+        min(s_m) as entry_s_m,
+        max(s_m) as exit_s_m,
+        min(first_frame) as first_frame,
+        min(last_frame) as last_frame
+    from stays
+    group by drive_id, actor_id, junction_id, island
+),
+
+merged as (
+    select
+        *,
+        sum(starts_new) over (
+            partition by drive_id, actor_id order by entry_frame rows between unbounded preceding and current row
+        ) as passage
+    from (
+        select
+            *,
+            case
+                when junction_id = lag(junction_id) over w and entry_s_m - lag(exit_s_m) over w < 2.0 then 0
+                else 1
+            end as starts_new
+        from stay_bounds
+        window w as (partition by drive_id, actor_id order by entry_frame)
+    ) as flagged
+),
+
+passages as (
+    select
+        drive_id,
+        actor_id,
+        passage,
+        min(junction_id) as junction_id,
+        min(entry_frame) as entry_frame,
+        max(exit_frame) as exit_frame,
+        min(entry_s_m) as entry_s_m,
+        max(exit_s_m) as exit_s_m,
+        min(entry_frame) > min(first_frame) as entry_observed,
+        max(exit_frame) < min(last_frame) as exit_observed
+    from merged
+    group by drive_id, actor_id, passage
+),
+
+outside_lanes as (
+    -- frames near a passage at which the actor is in a lane that is not in that junction
+    select
+        p.drive_id,
+        p.actor_id,
+        p.passage,
+        al.frame,
+        al.lane_id,
+        al.frame < p.entry_frame as before
+    from passages as p
+    inner join actor_lanes as al
+        on p.drive_id = al.drive_id and p.actor_id = al.actor_id
+        and (al.frame between p.entry_frame - 50 and p.entry_frame - 1
+            or al.frame between p.exit_frame + 1 and p.exit_frame + 50)
+    inner join drive_inputs as d
+        on p.drive_id = d.drive_id
+    inner join lanes as l
+        on d.map_id = l.map_id and al.lane_id = l.lane_id
+    where l.junction_id is null or l.junction_id <> p.junction_id
+),
+
+legs as (
+    select
+        drive_id,
+        actor_id,
+        passage,
+        max(case when before then frame end) as entry_lane_frame,
+        min(case when not before then frame end) as exit_lane_frame
+    from outside_lanes
+    group by drive_id, actor_id, passage
+),
+
+with_legs as (
+    select
+        p.*,
+        d.map_id,
+        el.lane_id as entry_lane_id,
+        xl.lane_id as exit_lane_id,
+        eh.heading_rad as entry_heading_rad,
+        xh.heading_rad as exit_heading_rad
+    from passages as p
+    inner join drive_inputs as d
+        on p.drive_id = d.drive_id
+    left join legs as g
+        on p.drive_id = g.drive_id and p.actor_id = g.actor_id and p.passage = g.passage
+    left join outside_lanes as el
+        on p.drive_id = el.drive_id and p.actor_id = el.actor_id and p.passage = el.passage
+        and el.frame = g.entry_lane_frame
+    left join outside_lanes as xl
+        on p.drive_id = xl.drive_id and p.actor_id = xl.actor_id and p.passage = xl.passage
+        and xl.frame = g.exit_lane_frame
+    left join actor_paths as eh
+        on p.drive_id = eh.drive_id and p.actor_id = eh.actor_id and eh.frame = p.entry_frame - 1
+    left join actor_paths as xh
+        on p.drive_id = xh.drive_id and p.actor_id = xh.actor_id and xh.frame = p.exit_frame + 1
+),
+
+map_turns as (
+    -- entry lane -> junction lane (the map's turn) -> [one more junction lane ->] exit lane
+    select
+        w.drive_id,
+        w.actor_id,
+        w.passage,
+        case when min(first_hop.turn) = max(first_hop.turn) then min(first_hop.turn) end as turn_from_map
+    from with_legs as w
+    inner join lane_successors as first_hop
+        on w.map_id = first_hop.map_id and w.entry_lane_id = first_hop.lane_id
+    left join lane_successors as second_hop
+        on first_hop.map_id = second_hop.map_id and first_hop.successor_id = second_hop.lane_id
+    left join lane_successors as third_hop
+        on second_hop.map_id = third_hop.map_id and second_hop.successor_id = third_hop.lane_id
+    where first_hop.turn is not null
+        and (second_hop.successor_id = w.exit_lane_id or third_hop.successor_id = w.exit_lane_id)
+    group by w.drive_id, w.actor_id, w.passage
+),
+
+turns as (
+    select
+        w.*,
+        m.turn_from_map,
+        case
+            when w.entry_heading_rad is null or w.exit_heading_rad is null then null
+            when abs(degrees(atan2(sin(w.exit_heading_rad - w.entry_heading_rad),
+                                   cos(w.exit_heading_rad - w.entry_heading_rad)))) <= 30 then 'straight'
+            when abs(degrees(atan2(sin(w.exit_heading_rad - w.entry_heading_rad),
+                                   cos(w.exit_heading_rad - w.entry_heading_rad)))) >= 150 then 'u_turn'
+            when atan2(sin(w.exit_heading_rad - w.entry_heading_rad),
+                       cos(w.exit_heading_rad - w.entry_heading_rad)) > 0 then 'left'
+            else 'right'
+        end as turn_from_heading
+    from with_legs as w
+    left join map_turns as m
+        on w.drive_id = m.drive_id and w.actor_id = m.actor_id and w.passage = m.passage
+)
+
+select
+    drive_id,
+    actor_id,
+    passage,
+    map_id,
+    junction_id,
+    entry_frame,
+    exit_frame,
+    entry_s_m,
+    exit_s_m,
+    entry_observed,
+    exit_observed,
+    entry_lane_id,
+    exit_lane_id,
+    entry_heading_rad,
+    exit_heading_rad,
+    turn_from_map,
+    turn_from_heading,
+    coalesce(turn_from_map, turn_from_heading) as turn
+from turns

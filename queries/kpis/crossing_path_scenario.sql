@@ -1,0 +1,16 @@
+-- kpis: crossing_path_scenario
+-- grain: one row per match: the post-encroachment time between the Ego and the vehicle_actor
+-- reads: scenario_matches, phase_frames (pet_s of the encroachment of the pair's junction passages)
+-- params: none
+--
+--   pet_between_sut_and_npc_s  the second box's first frame in the encroachment area minus the first box's
+--                              first frame after leaving it, to the sample; NULL when both were in the area
+--                              at once or one never crossed it (docs/semantics.md)
+select
+    m.match_id,
+    min(f.pet_s) as pet_between_sut_and_npc_s
+from scenario_matches as m
+inner join phase_frames as f
+    on m.drive_id = f.drive_id and m.ego_id = f.ego_id and m.actor_id = f.actor_id
+    and f.frame = m.start_frame and f.phase_1
+group by m.match_id

@@ -1,0 +1,258 @@
+-- phase: unprotected_left_turn_frames
+-- grain: one row per (drive_id, ego_id, actor_id, frame) at which the ego and a related actor are near or in
+--        the same junction: every measured value the four phases test, each phase's conditions, and
+--        phase_1 .. phase_4 (all of that phase's conditions hold)
+-- reads: relations, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
+--        traffic_light_states
+-- params: $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
+--         $min_offset_from_junction_end_m, $max_offset_from_junction_end_m,
+--         $ref_car_max_distance_from_junction_m, $stopping_car_speed_limit_mps,
+--         $max_offset_from_traffic_light_m, $encroachment_start_buffer, $encroachment_end_buffer
+--
+-- Definitions (docs/semantics.md, "unprotected_left_turn_with_yield_and_traffic_light"):
+--   ego_offset_from_junction_start_m, ...   offsets along each actor's own path (junction_frames)
+--   ego_turn                                 the turn of the ego's passage through the junction (passages.turn)
+--   light_state                              state of the light that governs the ego's movement: a light of
+--                                            the ego's entry lane whose direction includes the ego's turn (or
+--                                            governs every movement); green if any such light is green; NULL
+--                                            when no light governs it; 'unknown' when the data has no state
+--   light_in_range                           the ego is at most max_offset_from_traffic_light before the stop
+--                                            line (the junction start) or already in the junction it controls
+--   traversal_relative_direction             <entry leg>_to_<exit leg> of the actor, each leg classed against
+--                                            the ego's inbound heading (see leg classes below)
+--   occupancy                                the stretch of its own path along which a box overlaps the
+--                                            encroachment area: [enter_s - length/2, leave_s + length/2]
+--   actor_in_encroachment                    the actor's centre is inside its occupancy after the buffers
+--                                            cut encroachment_start_buffer and encroachment_end_buffer of
+--                                            its length from the start and the end
+--   actor_first                              the actor's box leaves the area before the ego's enters it
+--   ego_yields                               actor_first, and the ego's box has not reached the area yet: the
+--                                            ego is giving the right of way
+--   actor_crossing                           the actor is past the start of its (buffered) encroachment and
+--                                            at most max_offset_from_junction_end past the junction end
+--   actor_reaches_junction_end               the actor gets to min_offset_from_junction_end from the junction
+--                                            end before the ego's box enters the area: it finishes crossing
+--   pet_s                                    post-encroachment time: the second box's first frame in the
+--                                            area minus the first box's first frame after it; NULL when the
+--                                            boxes were in the area at the same time or one never crossed it
+-- Leg classes: d = the leg's inbound heading minus the ego's inbound heading, wrapped into (-180, 180]
+-- degrees; |d| < 45 parallel (the ego's own leg), |d| > 135 opposite, -135 < d < -45 left, 45 < d < 135
+-- right. An actor's entry leg's inbound heading is its heading before entry; its exit leg's is its heading
+-- after exit turned by 180 degrees. Unknown when a heading is missing (entry or exit not observed).
+with
+
+pair_frames as (
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        r.actor_kind,
+        r.frame,
+        r.t_s,
+        e.passage as ego_passage,
+        a.passage as actor_passage,
+        e.junction_id,
+        e.s_m as ego_s_m,
+        a.s_m as actor_s_m,
+        e.offset_from_junction_start_m as ego_offset_from_junction_start_m,
+        e.offset_from_junction_end_m as ego_offset_from_junction_end_m,
+        a.offset_from_junction_start_m as actor_offset_from_junction_start_m,
+        a.offset_from_junction_end_m as actor_offset_from_junction_end_m,
+        a.in_junction as actor_in_junction_area
+    from relations as r
+    inner join junction_frames as e
+        on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
+    inner join junction_frames as a
+        on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
+        and e.junction_id = a.junction_id
+),
+
+occupancy as (
+    -- each encroachment's occupancy stretches, on the ego's and on the actor's own path
+    select
+        x.*,
+        x.ego_enter_s_m - te.length_m / 2 as ego_occupancy_lo_m,
+        x.ego_leave_s_m + te.length_m / 2 as ego_occupancy_hi_m,
+        x.actor_enter_s_m - ta.length_m / 2 as actor_occupancy_lo_m,
+        x.actor_leave_s_m + ta.length_m / 2 as actor_occupancy_hi_m
+    from encroachments as x
+    inner join (select drive_id, actor_id, max(length_m) as length_m from tracks group by drive_id, actor_id) as te
+        on x.drive_id = te.drive_id and x.ego_id = te.actor_id
+    inner join (select drive_id, actor_id, max(length_m) as length_m from tracks group by drive_id, actor_id) as ta
+        on x.drive_id = ta.drive_id and x.actor_id = ta.actor_id
+),
+
+crossing_times as (
+    -- first frame each box is in the area, and first frame after it has left it
+    select
+        o.drive_id,
+        o.ego_id,
+        o.ego_passage,
+        o.actor_id,
+        o.actor_passage,
+        min(case when e.actor_id = o.ego_id and e.s_m >= o.ego_occupancy_lo_m then e.frame end) as ego_in_frame,
+        min(case when e.actor_id = o.ego_id and e.s_m > o.ego_occupancy_hi_m then e.frame end) as ego_out_frame,
+        min(case when e.actor_id = o.actor_id and e.s_m >= o.actor_occupancy_lo_m then e.frame end) as actor_in_frame,
+        min(case when e.actor_id = o.actor_id and e.s_m > o.actor_occupancy_hi_m then e.frame end) as actor_out_frame
+    from occupancy as o
+    inner join junction_frames as e
+        on o.drive_id = e.drive_id
+        and ((e.actor_id = o.ego_id and e.passage = o.ego_passage)
+            or (e.actor_id = o.actor_id and e.passage = o.actor_passage))
+    group by o.drive_id, o.ego_id, o.ego_passage, o.actor_id, o.actor_passage
+),
+
+crossing as (
+    select
+        o.*,
+        c.ego_in_frame,
+        c.ego_out_frame,
+        c.actor_in_frame,
+        c.actor_out_frame,
+        c.actor_out_frame <= c.ego_in_frame as actor_first,
+        case
+            when c.actor_out_frame <= c.ego_in_frame then (c.ego_in_frame - c.actor_out_frame) * d.dt_s
+            when c.ego_out_frame <= c.actor_in_frame then (c.actor_in_frame - c.ego_out_frame) * d.dt_s
+        end as pet_s
+    from occupancy as o
+    inner join crossing_times as c
+        on o.drive_id = c.drive_id and o.ego_id = c.ego_id and o.ego_passage = c.ego_passage
+        and o.actor_id = c.actor_id and o.actor_passage = c.actor_passage
+    inner join drive_inputs as d
+        on o.drive_id = d.drive_id
+),
+
+legs as (
+    select
+        f.drive_id,
+        f.ego_id,
+        f.ego_passage,
+        f.actor_id,
+        f.actor_passage,
+        pe.turn as ego_turn,
+        pe.entry_lane_id as ego_entry_lane_id,
+        degrees(atan2(sin(pa.entry_heading_rad - pe.entry_heading_rad),
+                      cos(pa.entry_heading_rad - pe.entry_heading_rad))) as entry_d_deg,
+        degrees(atan2(sin(pa.exit_heading_rad + pi() - pe.entry_heading_rad),
+                      cos(pa.exit_heading_rad + pi() - pe.entry_heading_rad))) as exit_d_deg
+    from (select distinct drive_id, ego_id, ego_passage, actor_id, actor_passage from pair_frames) as f
+    inner join passages as pe
+        on f.drive_id = pe.drive_id and f.ego_id = pe.actor_id and f.ego_passage = pe.passage
+    inner join passages as pa
+        on f.drive_id = pa.drive_id and f.actor_id = pa.actor_id and f.actor_passage = pa.passage
+),
+
+leg_classes as (
+    select
+        *,
+        case
+            when entry_d_deg is null then null
+            when abs(entry_d_deg) < 45 then 'parallel'
+            when abs(entry_d_deg) > 135 then 'opposite'
+            when entry_d_deg < 0 then 'left'
+            else 'right'
+        end as actor_entry_leg,
+        case
+            when exit_d_deg is null then null
+            when abs(exit_d_deg) < 45 then 'parallel'
+            when abs(exit_d_deg) > 135 then 'opposite'
+            when exit_d_deg < 0 then 'left'
+            else 'right'
+        end as actor_exit_leg
+    from legs
+),
+
+ego_lights as (
+    select
+        f.drive_id,
+        f.ego_id,
+        f.ego_passage,
+        f.frame,
+        case
+            when count(tl.light_id) = 0 then null
+            when bool_or(s.state = 'green') then 'green'
+            when count(s.state) = 0 then 'unknown'
+            else min(s.state)
+        end as light_state
+    from (select distinct drive_id, ego_id, ego_passage, frame from pair_frames) as f
+    inner join passages as pe
+        on f.drive_id = pe.drive_id and f.ego_id = pe.actor_id and f.ego_passage = pe.passage
+    left join traffic_lights as tl
+        on pe.map_id = tl.map_id and pe.entry_lane_id = tl.lane_id
+        and (tl.direction is null or instr(',' || tl.direction || ',', ',' || pe.turn || ',') > 0)
+    left join traffic_light_states as s
+        on f.drive_id = s.drive_id and tl.light_id = s.light_id and f.frame = s.frame
+    group by f.drive_id, f.ego_id, f.ego_passage, f.frame
+),
+
+measured as (
+    select
+        f.*,
+        te.speed_mps as ego_speed_mps,
+        g.ego_turn,
+        l.light_state,
+        g.actor_entry_leg,
+        g.actor_exit_leg,
+        coalesce(g.actor_entry_leg || '_to_' || g.actor_exit_leg, 'unknown') as traversal_relative_direction,
+        c.area_m2 as encroachment_area_m2,
+        c.actor_first,
+        c.pet_s,
+        c.ego_in_frame as ego_encroachment_frame,
+        min(case when f.actor_offset_from_junction_end_m >= $min_offset_from_junction_end_m then f.frame end) over (
+            partition by f.drive_id, f.ego_id, f.ego_passage, f.actor_id, f.actor_passage
+        ) as actor_end_frame,
+        c.actor_occupancy_lo_m + $encroachment_start_buffer * (c.actor_occupancy_hi_m - c.actor_occupancy_lo_m)
+            as actor_encroachment_from_s_m,
+        c.actor_occupancy_hi_m - $encroachment_end_buffer * (c.actor_occupancy_hi_m - c.actor_occupancy_lo_m)
+            as actor_encroachment_to_s_m
+    from pair_frames as f
+    inner join tracks as te
+        on f.drive_id = te.drive_id and f.ego_id = te.actor_id and f.frame = te.frame
+    inner join leg_classes as g
+        on f.drive_id = g.drive_id and f.ego_id = g.ego_id and f.ego_passage = g.ego_passage
+        and f.actor_id = g.actor_id and f.actor_passage = g.actor_passage
+    inner join ego_lights as l
+        on f.drive_id = l.drive_id and f.ego_id = l.ego_id and f.ego_passage = l.ego_passage and f.frame = l.frame
+    left join crossing as c
+        on f.drive_id = c.drive_id and f.ego_id = c.ego_id and f.ego_passage = c.ego_passage
+        and f.actor_id = c.actor_id and f.actor_passage = c.actor_passage
+),
+
+conditions as (
+    select
+        *,
+        instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
+        coalesce(ego_turn = 'left', false) as ego_turns_left,
+        coalesce(ego_offset_from_junction_start_m between $min_offset_from_junction_start_m
+            and $max_offset_from_junction_start_m, false) as ego_near_junction_start,
+        coalesce(ego_speed_mps <= $stopping_car_speed_limit_mps, false) as ego_stopped,
+        coalesce(ego_offset_from_junction_start_m >= -$max_offset_from_traffic_light_m
+            and coalesce(ego_offset_from_junction_end_m <= 0, true), false) as light_in_range,
+        coalesce(light_state = 'green', false) as light_green,
+        coalesce(actor_offset_from_junction_start_m between $min_offset_from_junction_start_m
+            and $max_offset_from_junction_start_m, false) as actor_near_junction_start,
+        coalesce(actor_offset_from_junction_start_m >= 0
+            and actor_offset_from_junction_end_m <= $ref_car_max_distance_from_junction_m, false)
+            as actor_inside_junction,
+        coalesce(actor_entry_leg <> 'parallel', false) as actor_from_other_entry,
+        coalesce(actor_first and frame < ego_encroachment_frame, false) as ego_yields,
+        coalesce(actor_s_m between actor_encroachment_from_s_m and actor_encroachment_to_s_m, false)
+            as actor_in_encroachment,
+        coalesce(actor_s_m >= actor_encroachment_from_s_m
+            and actor_offset_from_junction_end_m <= $max_offset_from_junction_end_m, false) as actor_crossing,
+        coalesce(actor_end_frame < ego_encroachment_frame, false) as actor_reaches_junction_end,
+        coalesce(ego_offset_from_junction_start_m >= $min_offset_from_junction_start_m
+            and ego_offset_from_junction_end_m <= 0, false) as ego_in_junction
+    from measured
+)
+
+select
+    *,
+    actor_kind_ok and ego_turns_left and ego_near_junction_start and ego_stopped and light_in_range
+        and light_green and actor_near_junction_start and ego_yields as phase_1,
+    actor_kind_ok and ego_turns_left and ego_near_junction_start and actor_inside_junction
+        and actor_from_other_entry and ego_yields as phase_2,
+    actor_kind_ok and ego_turns_left and ego_yields and actor_crossing and actor_reaches_junction_end
+        as phase_3,
+    actor_kind_ok and ego_turns_left and ego_in_junction as phase_4
+from conditions
