@@ -80,6 +80,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_explain(args: argparse.Namespace) -> int:
+    from logiq_sql.explain import explain
+
+    result = explain(args.db, args.scenario, args.drive, args.ego, actor=args.actor, overrides=_set_pairs(args.set),
+                     relation_range=args.relation_range)
+    print(result.text())
+    return 0
+
+
 def cmd_query(args: argparse.Namespace) -> int:
     import polars as pl
 
@@ -156,6 +165,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego", default="auto", help="as for match")
     p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("explain", help="why a scenario did not match: the first phase and condition that failed",
+                       epilog=EPILOG,
+                       description="Rerun a scenario's steps for one drive and ego (read-only) and print, for each "
+                                   "actor near the ego, how many phases it got through and, where it stopped, the "
+                                   "conditions of the next phase that failed, with the measured values. For "
+                                   "scenarios whose phases list their conditions (unprotected_left_turn_...).")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
+    p.add_argument("--scenario", required=True, metavar="NAME")
+    p.add_argument("--drive", required=True, metavar="ID")
+    p.add_argument("--ego", required=True, metavar="IDS", help="the ego's actor id(s), comma-separated, or recorded")
+    p.add_argument("--actor", metavar="ID", help="only this actor")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
+    p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
+    p.set_defaults(func=cmd_explain)
 
     p = sub.add_parser("query", help="run read-only SQL against a DuckDB file and print a table", epilog=EPILOG)
     p.add_argument("sql", metavar="SQL")

@@ -139,7 +139,8 @@ def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> 
 def phase_steps(s: Scenario) -> list[tuple[str, str]]:
     """The steps from the relations to the scenario's matches (table, query)."""
     if s.frames_query:
-        steps = [("phase_frames", s.frames_query), ("phase_islands", "match/phase_islands.sql")]
+        steps = [("phase_frames", s.frames_query), ("phase_islands", "match/phase_islands.sql"),
+                 ("chain", "match/chain.sql")]
     else:
         steps = [(f"phase_{i}", p.query or "") for i, p in enumerate(s.phases, 1)]
     return [*steps, ("scenario_match", s.match_query or "")]

@@ -213,7 +213,7 @@ def read_av2(path: str | Path) -> Iterator[DriveData]:
 def _read_table(path: Path, columns: tuple[str, ...], what: str) -> pl.DataFrame:
     try:
         df = pl.read_parquet(path) if path.suffix == ".parquet" else pl.read_ipc(path)
-    except Exception as exc:  # polars raises ComputeError, ArrowError, OSError, ... on damaged files
+    except (pl.exceptions.PolarsError, OSError, ValueError) as exc:  # truncated, empty or not Arrow / Parquet
         raise InputError(
             f"{path}: not a readable {what} ({type(exc).__name__}: {exc}). "
             "Fix: copy the file again from the Argoverse 2 dataset; it must be complete."

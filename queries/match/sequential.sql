@@ -1,8 +1,8 @@
 -- match: sequential
 -- grain: one row per match of a scenario whose phases (up to four) follow one another, with each phase's
 --        interval (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
--- reads: phase_islands (phase_index, drive_id, ego_id, actor_id, start_frame, end_frame: the stretches of
---        consecutive frames in which each phase's conditions hold), tracks
+-- reads: chain (match/chain.sql, over phase_islands: the stretches of consecutive frames in which each
+--        phase's conditions hold), tracks
 -- params: $phase_count
 --
 -- A match is a chain: phase 1 starts where one of its islands starts, and each next phase takes over from
@@ -15,45 +15,7 @@
 -- Phase k then lasts from its transition frame to the frame before the next transition; the last phase lasts
 -- to the end of its island. Of several chains from one start, the one with the earliest transitions is kept.
 -- The scenarios that use this query have no phase duration limits.
-with recursive
-
-chain as (
-    select
-        drive_id,
-        ego_id,
-        actor_id,
-        1 as phase_index,
-        start_frame as chain_start_frame,
-        start_frame as phase_start_frame,
-        end_frame as island_end_frame,
-        lpad(cast(start_frame as varchar), 12, '0') as path_key
-    from phase_islands
-    where phase_index = 1
-
-    union all
-
-    select
-        c.drive_id,
-        c.ego_id,
-        c.actor_id,
-        c.phase_index + 1 as phase_index,
-        c.chain_start_frame,
-        case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
-            as phase_start_frame,
-        j.end_frame as island_end_frame,
-        c.path_key || lpad(cast(
-            case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
-            as varchar), 12, '0') as path_key
-    from chain as c
-    inner join phase_islands as j
-        on c.drive_id = j.drive_id and c.ego_id = j.ego_id and c.actor_id = j.actor_id
-        and j.phase_index = c.phase_index + 1
-    where c.phase_index < $phase_count
-        and (
-            (j.start_frame > c.phase_start_frame and j.start_frame <= c.island_end_frame + 1)
-            or (j.start_frame <= c.phase_start_frame and j.end_frame >= c.island_end_frame + 1)
-        )
-),
+with
 
 chosen as (
     -- per start, the complete chain with the earliest transitions

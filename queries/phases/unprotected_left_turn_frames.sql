@@ -42,29 +42,34 @@
 with
 
 pair_frames as (
-    select
-        r.drive_id,
-        r.ego_id,
-        r.actor_id,
-        r.actor_kind,
-        r.frame,
-        r.t_s,
-        e.passage as ego_passage,
-        a.passage as actor_passage,
-        e.junction_id,
-        e.s_m as ego_s_m,
-        a.s_m as actor_s_m,
-        e.offset_from_junction_start_m as ego_offset_from_junction_start_m,
-        e.offset_from_junction_end_m as ego_offset_from_junction_end_m,
-        a.offset_from_junction_start_m as actor_offset_from_junction_start_m,
-        a.offset_from_junction_end_m as actor_offset_from_junction_end_m,
-        a.in_junction as actor_in_junction_area
-    from relations as r
-    inner join junction_frames as e
-        on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
-    inner join junction_frames as a
-        on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
-        and e.junction_id = a.junction_id
+    -- the ego near or in a junction, and a related actor that comes near or into the same junction while the
+    -- ego is there (its offsets are NULL at the frames it is farther away)
+    select *
+    from (
+        select
+            r.drive_id,
+            r.ego_id,
+            r.actor_id,
+            r.actor_kind,
+            r.frame,
+            r.t_s,
+            e.passage as ego_passage,
+            max(a.passage) over (partition by r.drive_id, r.ego_id, e.passage, r.actor_id) as actor_passage,
+            e.junction_id,
+            e.s_m as ego_s_m,
+            a.s_m as actor_s_m,
+            e.offset_from_junction_start_m as ego_offset_from_junction_start_m,
+            e.offset_from_junction_end_m as ego_offset_from_junction_end_m,
+            a.offset_from_junction_start_m as actor_offset_from_junction_start_m,
+            a.offset_from_junction_end_m as actor_offset_from_junction_end_m
+        from relations as r
+        inner join junction_frames as e
+            on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
+        left join junction_frames as a
+            on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
+            and e.junction_id = a.junction_id
+    ) as near
+    where actor_passage is not null
 ),
 
 occupancy as (

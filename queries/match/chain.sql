@@ -1,0 +1,52 @@
+-- match: chain
+-- grain: one row per (drive_id, ego_id, actor_id, chain_start_frame, path_key): a chain of phases from a
+--        phase-1 island, as far as it gets (phase_index = the phase it has reached); `explain` reads the
+--        partial ones, match/sequential.sql the complete ones
+-- reads: phase_islands
+-- params: $phase_count
+--
+-- The transition rule (queries/match/sequential.sql has the whole story): from phase k, begun at
+-- phase_start_frame in an island that ends at island_end_frame, phase k+1 begins
+--   * where an island of phase k+1 starts, if it starts after phase_start_frame and by island_end_frame + 1;
+--   * else right after island_end_frame, if an island of phase k+1 covers phase_start_frame .. island_end_frame + 1.
+-- path_key is the chain's transition frames, zero-padded and concatenated: the least key has the earliest
+-- transitions.
+with recursive chain as (
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        1 as phase_index,
+        start_frame as chain_start_frame,
+        start_frame as phase_start_frame,
+        end_frame as island_end_frame,
+        lpad(cast(start_frame as varchar), 12, '0') as path_key
+    from phase_islands
+    where phase_index = 1
+
+    union all
+
+    select
+        c.drive_id,
+        c.ego_id,
+        c.actor_id,
+        c.phase_index + 1 as phase_index,
+        c.chain_start_frame,
+        case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
+            as phase_start_frame,
+        j.end_frame as island_end_frame,
+        c.path_key || lpad(cast(
+            case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
+            as varchar), 12, '0') as path_key
+    from chain as c
+    inner join phase_islands as j
+        on c.drive_id = j.drive_id and c.ego_id = j.ego_id and c.actor_id = j.actor_id
+        and j.phase_index = c.phase_index + 1
+    where c.phase_index < $phase_count
+        and (
+            (j.start_frame > c.phase_start_frame and j.start_frame <= c.island_end_frame + 1)
+            or (j.start_frame <= c.phase_start_frame and j.end_frame >= c.island_end_frame + 1)
+        )
+)
+
+select * from chain

@@ -1,0 +1,139 @@
+"""unprotected_left_turn_with_yield_and_traffic_light on a hand-made junction whose phases follow from the
+kinematics (tests/junction_helpers.py), and `explain` on the pairs that do not match."""
+
+from __future__ import annotations
+
+import duckdb
+import numpy as np
+import polars as pl
+import pytest
+import shapely
+
+from junction_helpers import make_junction_db, drive
+from logiq_sql.match import match, parse_ego, prepare_relations, run_values
+from logiq_sql.explain import explain
+
+SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
+T = np.round(np.arange(0, 200) * 0.1, 6)
+
+
+def ego_s(t: np.ndarray, wait_until: float = 9.0) -> np.ndarray:
+    """Brakes at 2 m/s^2 from 8 m/s to stop 2 m before the junction at t = 4 s, waits, then pulls away at
+    2 m/s^2 to 6 m/s and turns left."""
+    braking = -18 + 8 * np.minimum(t, 4) - np.minimum(t, 4) ** 2
+    go = np.clip(t - wait_until, 0, None)
+    return np.where(t < wait_until, braking, -2 + np.where(go < 3, go**2, 9 + 6 * (go - 3)))
+
+
+def oncoming_s(t: np.ndarray, enters_at: float = 5.0) -> np.ndarray:
+    """Straight through from the north at 10 m/s, entering the junction at ``enters_at``."""
+    return 10 * (t - enters_at)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    path = make_junction_db(tmp_path_factory.mktemp("lt"), [
+        drive("ego", T, ego_s(T), "S_left", is_ego=True), drive("car", T, oncoming_s(T), "N_straight")])
+    result = match(path, [SCENARIO])
+    return path, result
+
+
+def test_one_match_with_four_phases_in_order(base):
+    _, result = base
+    assert result.matches.height == 1
+    m = result.matches.row(0, named=True)
+    assert (m["ego_id"], m["actor_id"]) == ("ego", "car")
+    phases = result.match_phases.sort("phase_index")
+    assert phases["phase"].to_list() == ["stop_in_green_light", "sut_yield_to_npc",
+                                         "other_car_finishes_crossing_junction", "sut_turn_left"]
+    starts, ends = phases["start_s"].to_list(), phases["end_s"].to_list()
+    for end, nxt in zip(ends, starts[1:], strict=False):
+        assert nxt == pytest.approx(end + 0.1)  # each phase takes over right after the one before
+    # stop_in_green_light: the ego stands (from 4 s) and the car is within 10 m of its junction start (4-6 s),
+    # until the car enters the junction at 5 s, when sut_yield_to_npc begins
+    assert starts[0] == pytest.approx(4.0, abs=0.11)
+    assert starts[1] == pytest.approx(5.0, abs=0.11)
+    # other_car_finishes_crossing_junction lasts until the car is 5 m past the junction end: s = 25 m, 7.5 s
+    assert ends[2] == pytest.approx(7.5, abs=0.11)
+    # sut_turn_left ends when the ego leaves the junction: 18.46 m of arc after it starts at 9 s, 2 m back
+    leave = 9 + 3 + (18.46 + 2 - 9) / 6
+    assert ends[3] == pytest.approx(leave, abs=0.11)
+    assert (m["start_s"], m["end_s"]) == (starts[0], ends[3])
+
+
+def test_traversal_direction_and_pet_against_box_footprints(base):
+    path, result = base
+    kpis = result.kpis.row(0, named=True)
+    assert kpis["traversal_relative_direction"] == "opposite_to_parallel"
+    # PET from the boxes themselves: the encroachment area is where the two boxes' footprints inside the
+    # junction overlap; PET = first frame the ego's box touches it - first frame the car's box is clear of it
+    with duckdb.connect(str(path), read_only=True) as con:
+        rows = con.sql("select actor_id, frame, x_m, y_m, heading_rad, length_m, width_m from tracks "
+                       "order by actor_id, frame").pl()
+    c, s = np.cos(rows["heading_rad"].to_numpy()), np.sin(rows["heading_rad"].to_numpy())
+    hl, hw = rows["length_m"].to_numpy() / 2, rows["width_m"].to_numpy() / 2
+    corners = np.stack([np.column_stack([rows["x_m"] + a * hl * c - b * hw * s, rows["y_m"] + a * hl * s + b * hw * c])
+                        for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
+    boxes = shapely.polygons(corners)
+    junction = shapely.box(-10, -10, 10, 10)
+    ego, car = (rows["actor_id"] == "ego").to_numpy(), (rows["actor_id"] == "car").to_numpy()
+    swept = [shapely.intersection(shapely.union_all(boxes[m]), junction) for m in (ego, car)]
+    area = shapely.intersection(*swept)
+    ego_in = rows["frame"].to_numpy()[ego][shapely.intersects(boxes[ego], area)].min()
+    car_frames = rows["frame"].to_numpy()[car]
+    car_out = car_frames[(car_frames > car_frames[shapely.intersects(boxes[car], area)].max())].min()
+    assert kpis["pet_between_sut_and_npc_s"] == pytest.approx((ego_in - car_out) * 0.1, abs=0.21)
+    assert kpis["pet_between_sut_and_npc_s"] > 3
+
+
+def test_encroachment_and_passages_are_stored_for_analysts(base):
+    path, _ = base
+    with duckdb.connect(str(path), read_only=True) as con:
+        passages = con.sql("select actor_id, junction_id, turn, turn_from_map, turn_from_heading, entry_lane_id, "
+                           "exit_lane_id from passages order by actor_id").pl()
+        enc = con.sql("select * from encroachments").pl()
+    assert passages.rows() == [("car", "J", "straight", "straight", "straight", "N_in", "S_out"),
+                               ("ego", "J", "left", "left", "left", "S_in", "W_out")]
+    assert enc.height == 1 and enc["area_m2"][0] > 1
+
+
+def test_red_light_no_light_and_no_yield_do_not_match_and_explain_says_why(tmp_path):
+    cases = {
+        "red": (dict(light="red"), ego_s(T), "light_green is false: light_state = red"),
+        "none": (dict(light=None), ego_s(T), "light_green is false: light_state = NULL"),
+        # the ego goes first: it crosses before the car arrives, so it gives no right of way
+        "ego_first": (dict(), ego_s(T, wait_until=4.2), "ego_yields is false"),
+    }
+    for name, (kwargs, s, reason) in cases.items():
+        car = oncoming_s(T, enters_at=12.0) if name == "ego_first" else oncoming_s(T)
+        path = make_junction_db(tmp_path / name, [drive("ego", T, s, "S_left", is_ego=True),
+                                                  drive("car", T, car, "N_straight")], **kwargs)
+        assert match(path, [SCENARIO]).matches.is_empty(), name
+        found = explain(path, SCENARIO, "j1", "ego", actor="car")
+        row = found.pairs.row(0, named=True)
+        assert row["phases_reached"] < 4 and row["failed_phase"] == "stop_in_green_light", name
+        assert any(f.startswith(reason) for f in row["failed"]), (name, row["failed"])
+
+
+def test_explain_reports_a_match_as_matched(base):
+    path, _ = base
+    found = explain(path, SCENARIO, "j1", "ego")
+    assert found.pairs.select("actor_id", "phases_reached", "failed_phase").rows() == [("car", 4, None)]
+    assert "matched" in found.text()
+
+
+def test_phase_columns_are_the_conjunction_of_the_listed_conditions(base):
+    """The scenario file lists each phase's conditions for explain; they must be exactly the SQL's."""
+    path, _ = base
+    from logiq_sql.scenario import load_scenario
+    from logiq_sql.sql import materialise
+    s = load_scenario(SCENARIO)
+    with duckdb.connect(str(path), read_only=True) as con:
+        con.register("run_drives", pl.DataFrame({"drive_id": ["j1"]}))
+        values = run_values(s, parse_ego("auto"), 200.0)
+        prepare_relations(con, [s], values)
+        materialise(con, "phase_frames", s.frames_query, values)
+        frames = con.sql("select * from phase_frames").pl()
+    for i, phase in enumerate(s.phases, 1):
+        both = pl.all_horizontal([pl.col(c.name).fill_null(False) for c in phase.conditions])
+        assert frames.select((both == pl.col(f"phase_{i}").fill_null(False)).all()).item(), phase.name
