@@ -44,7 +44,7 @@ steps as (
     inner join chosen as k
         on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
         and c.chain_start_frame = k.chain_start_frame
-        and substr(k.path_key, 1, length(c.path_key)) = c.path_key
+        and starts_with(k.path_key, c.path_key)
 ),
 
 phases as (
