@@ -18,6 +18,7 @@ demo: venv
 	rm -f $(DEMO_DB)
 	$(BIN)/logiq-sql ingest commonroad tests/data/commonroad_ngsim --db $(DEMO_DB) --quiet
 	$(BIN)/logiq-sql ingest scenarionet tests/data/nuscenes_mini_scenarionet --db $(DEMO_DB) --quiet
+	$(BIN)/logiq-sql ingest av2 tests/data/av2 --db $(DEMO_DB) --quiet
 	$(BIN)/logiq-sql match --db $(DEMO_DB) --out demo/out
 	@echo; echo "Closest followers (NGSIM: every car is the SUT in turn):"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 8 "select m.drive_id, m.ego_id, m.actor_id, m.start_s, m.end_s, \
@@ -36,6 +37,19 @@ demo: venv
 	  where m.scenario = 'sut_cut_out' group by all order by m.drive_id, m.ego_id limit 6"
 	@echo; echo "Cyclist matches (nuScenes); the closest moving cyclist of the bundled scenes passes 5.2 m away:"
 	@$(BIN)/logiq-sql match --db $(DEMO_DB) --scenario cyclist_close_to_moving_sut --set max_distance_from_cyclist=6m --quiet
+	@echo; echo "Unprotected left turn: none in the real drives. Why not, for the Argoverse 2 Miami ego, which stops in a"
+	@echo "junction while an oncoming car passes (logiq-sql explain; AV2 maps have no traffic lights):"
+	@$(BIN)/logiq-sql explain --db $(DEMO_DB) --scenario unprotected_left_turn_with_yield_and_traffic_light \
+	  --drive 3b3570b4-7b0b-3268-a571-b0889dbf40b6 --ego recorded --actor 2357dba4-c8f6-40e7-aee3-6af6a2908521
+	@echo; echo "The same scenario on a simulated signalised junction (SUMO, 5 min, bundled; signal states known):"
+	rm -f demo/sumo.duckdb
+	$(BIN)/logiq-sql ingest sumo tests/data/sumo/junction_s1 --db demo/sumo.duckdb --quiet
+	$(BIN)/logiq-sql match --db demo/sumo.duckdb --scenario unprotected_left_turn_with_yield_and_traffic_light --ego every:3 --quiet
+	@$(BIN)/logiq-sql query --db demo/sumo.duckdb --limit 6 "select m.ego_id, m.actor_id, m.start_s, \
+	  string_agg(round(p.end_s - p.start_s + 0.1, 1)::varchar, ' + ' order by p.phase_index) as phase_seconds, \
+	  k.traversal_relative_direction as traversal, k.pet_between_sut_and_npc_s as pet_s \
+	  from matches m join match_phases p using (match_id) join kpis k using (match_id) group by all \
+	  order by m.start_s limit 6"
 	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, cast(sum(matches) as bigint) as matches from drives group by 1"
 
