@@ -137,3 +137,51 @@ def test_phase_columns_are_the_conjunction_of_the_listed_conditions(base):
     for i, phase in enumerate(s.phases, 1):
         both = pl.all_horizontal([pl.col(c.name).fill_null(False) for c in phase.conditions])
         assert frames.select((both == pl.col(f"phase_{i}").fill_null(False)).all()).item(), phase.name
+
+
+def test_pet_is_null_when_both_boxes_are_in_the_area_at_once(tmp_path):
+    """The ego pulls away at 4.2 s and the car enters the junction at 5.8 s: both boxes are in the
+    encroachment area around 7 s, so PET is undefined (NULL, never a sentinel) and neither gave way."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_s(T, wait_until=4.2), "S_left", is_ego=True),
+                                       drive("car", T, oncoming_s(T, enters_at=5.8), "N_straight")])
+    from logiq_sql.scenario import load_scenario
+    from logiq_sql.sql import materialise
+    s = load_scenario(SCENARIO)
+    with duckdb.connect(str(path), read_only=True) as con:
+        con.register("run_drives", pl.DataFrame({"drive_id": ["j1"]}))
+        values = run_values(s, parse_ego("auto"), 200.0)
+        prepare_relations(con, [s], values)
+        materialise(con, "phase_frames", s.frames_query, values)
+        frames = con.sql("select * from phase_frames").pl()
+    assert frames["encroachment_area_m2"].drop_nulls().min() > 1
+    assert frames["pet_s"].is_null().all() and not frames["ego_yields"].any()
+
+
+def _chain(islands: list[tuple[int, int, int]], phase_count: int) -> list[tuple]:
+    """Run match/chain.sql and match/sequential.sql on hand-written phase islands (phase, start, end)."""
+    from logiq_sql.sql import materialise
+    con = duckdb.connect()
+    con.register("phase_islands", pl.DataFrame(
+        [(k, "d", "e", "a", s, e) for k, s, e in islands], orient="row",
+        schema=["phase_index", "drive_id", "ego_id", "actor_id", "start_frame", "end_frame"]))
+    con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": range(200),
+                                         "t_s": [f / 10 for f in range(200)]}))
+    values = {"phase_count": phase_count}
+    materialise(con, "chain", "match/chain.sql", values)
+    materialise(con, "scenario_match", "match/sequential.sql", values)
+    cols = [f"p{i}_{c}" for i in range(1, phase_count + 1) for c in ("start_frame", "end_frame")]
+    return con.sql(f"select {', '.join(cols)} from scenario_match order by start_frame").fetchall()
+
+
+def test_chain_transitions():
+    # a next phase that starts inside the current one takes over where it starts (the earliest, if several)
+    assert _chain([(1, 10, 20), (2, 15, 30), (2, 18, 40)], 2) == [(10, 14, 15, 30)]
+    # one that already holds takes over after the current one's island ends
+    assert _chain([(1, 10, 20), (2, 5, 40)], 2) == [(10, 20, 21, 40)]
+    # ... but only if it still holds one frame later
+    assert _chain([(1, 10, 20), (2, 5, 20)], 2) == []
+    # a gap between the phases breaks the chain; adjacency is enough
+    assert _chain([(1, 10, 20), (2, 22, 30)], 2) == []
+    assert _chain([(1, 10, 20), (2, 21, 30)], 2) == [(10, 20, 21, 30)]
+    # three phases, both kinds of transition, and a second phase-1 island that leads nowhere
+    assert _chain([(1, 10, 20), (1, 50, 55), (2, 12, 30), (3, 0, 60)], 3) == [(10, 11, 12, 30, 31, 60)]
