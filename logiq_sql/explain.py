@@ -23,7 +23,12 @@ import polars as pl
 from logiq_sql import db, units
 from logiq_sql.errors import ScenarioError
 from logiq_sql.match import (
-    DEFAULT_RELATION_RANGE, parse_ego, phase_steps, prepare_relations, resolve_scenarios, run_values,
+    DEFAULT_RELATION_RANGE,
+    parse_ego,
+    phase_steps,
+    prepare_relations,
+    resolve_scenarios,
+    run_values,
 )
 from logiq_sql.scenario import Scenario
 from logiq_sql.sql import materialise

@@ -22,8 +22,8 @@ import duckdb
 import polars as pl
 
 from logiq_sql import db, units
-from logiq_sql.encroachment import encroachments
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
+from logiq_sql.encroachment import encroachments
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import materialise, query_text, render_steps

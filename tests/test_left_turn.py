@@ -8,10 +8,10 @@ import numpy as np
 import polars as pl
 import pytest
 import shapely
+from junction_helpers import drive, make_junction_db
 
-from junction_helpers import make_junction_db, drive
-from logiq_sql.match import match, parse_ego, prepare_relations, run_values
 from logiq_sql.explain import explain
+from logiq_sql.match import match, parse_ego, prepare_relations, run_values
 
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
 T = np.round(np.arange(0, 200) * 0.1, 6)
@@ -185,3 +185,16 @@ def test_chain_transitions():
     assert _chain([(1, 10, 20), (2, 21, 30)], 2) == [(10, 20, 21, 30)]
     # three phases, both kinds of transition, and a second phase-1 island that leads nowhere
     assert _chain([(1, 10, 20), (1, 50, 55), (2, 12, 30), (3, 0, 60)], 3) == [(10, 11, 12, 30, 31, 60)]
+
+
+def test_rendered_sql_reruns_to_the_same_match(base):
+    """render prints SQL an analyst can run as it is; it reads the stored encroachments (shapely)."""
+    from logiq_sql.match import render
+    path, result = base
+    with duckdb.connect(str(path)) as con:
+        result_set = con.execute(render(SCENARIO))
+        rows = pl.DataFrame(result_set.fetchall(), schema=[d[0] for d in result_set.description], orient="row")
+    cols = ["ego_id", "actor_id", "start_frame", "end_frame", *[f"p{i}_start_frame" for i in range(1, 5)]]
+    assert rows.select(cols).rows() == result.matches.join(
+        result.match_phases.pivot("phase_index", index="match_id", values="start_frame").rename(
+            {str(i): f"p{i}_start_frame" for i in range(1, 5)}), on="match_id").select(cols).rows()
