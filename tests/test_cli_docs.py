@@ -25,7 +25,7 @@ def test_every_column_has_a_comment(tmp_path):
     assert bare == []
 
 
-@pytest.mark.parametrize("command", ["ingest", "match", "scenarios", "render", "query"])
+@pytest.mark.parametrize("command", ["ingest", "match", "scenarios", "render", "explain", "query"])
 def test_help(command, capsys):
     with pytest.raises(SystemExit) as e:
         main([command, "--help"])

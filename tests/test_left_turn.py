@@ -198,3 +198,14 @@ def test_rendered_sql_reruns_to_the_same_match(base):
     assert rows.select(cols).rows() == result.matches.join(
         result.match_phases.pivot("phase_index", index="match_id", values="start_frame").rename(
             {str(i): f"p{i}_start_frame" for i in range(1, 5)}), on="match_id").select(cols).rows()
+
+
+def test_explain_through_the_cli_and_its_errors(base, capsys):
+    from logiq_sql.cli import main
+    path, _ = base
+    assert main(["explain", "--db", str(path), "--scenario", SCENARIO, "--drive", "j1", "--ego", "ego"]) == 0
+    assert "ego ego, actor car: 4 of 4 phases -- matched" in capsys.readouterr().out
+    with pytest.raises(Exception, match="no such drive"):
+        explain(path, SCENARIO, "nope", "ego")
+    with pytest.raises(Exception, match="explain covers scenarios whose phases list their conditions"):
+        explain(path, "follower_vehicle", "j1", "ego")
