@@ -30,24 +30,27 @@ MIN_AREA_M2 = 0.01  # paths that only touch share no area
 
 
 def _paths(con: duckdb.DuckDBPyConnection) -> tuple[pl.DataFrame, np.ndarray, np.ndarray]:
-    """Every passage named by a crossing pair: its key, entry position, centre line and swept path."""
+    """Every passage named by a crossing pair: its key, the path position of its first point, its centre line
+    and its swept path."""
     points = con.sql("""
         with wanted as (
             select drive_id, ego_id as actor_id, ego_passage as passage from crossing_pairs
             union
             select drive_id, actor_id, actor_passage as passage from crossing_pairs
         )
-        select p.drive_id, p.actor_id, p.passage, p.entry_s_m, t.x_m, t.y_m, t.width_m
+        select p.drive_id, p.actor_id, p.passage, a.s_m, t.x_m, t.y_m, t.width_m
         from passages as p
         inner join wanted as w
             on p.drive_id = w.drive_id and p.actor_id = w.actor_id and p.passage = w.passage
         inner join tracks as t
             on p.drive_id = t.drive_id and p.actor_id = t.actor_id and t.frame between p.entry_frame and p.exit_frame
+        inner join actor_paths as a
+            on t.drive_id = a.drive_id and t.actor_id = a.actor_id and t.frame = a.frame
         order by p.drive_id, p.actor_id, p.passage, t.frame
     """).pl()
     keyed = points.with_columns(pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64).alias("k") - 1)
     paths = (keyed.group_by("k", maintain_order=True)
-             .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"), pl.first("entry_s_m"),
+             .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"), pl.first("s_m").alias("first_s_m"),
                   pl.col("width_m").median().alias("width_m"), pl.len().alias("n")))
     # a passage seen at one frame has no line: repeat its point so every passage has one
     single = paths.filter(pl.col("n") == 1)["k"]
@@ -85,7 +88,7 @@ def encroachments(con: duckdb.DuckDBPyConnection) -> pl.DataFrame:
     area_m2 = shapely.area(areas)
     keep = area_m2 >= MIN_AREA_M2
     pairs, ek, ak, areas, area_m2 = pairs.filter(pl.Series(keep)), ek[keep], ak[keep], areas[keep], area_m2[keep]
-    entry_s = paths["entry_s_m"].to_numpy()
+    entry_s = paths["first_s_m"].to_numpy()  # s_m of each line's first point: positions along it add to it
     ego_lo, ego_hi = _extent(lines[ek], areas)
     actor_lo, actor_hi = _extent(lines[ak], areas)
     return pairs.select(

@@ -178,8 +178,10 @@ def test_chain_transitions():
     assert _chain([(1, 10, 20), (2, 15, 30), (2, 18, 40)], 2) == [(10, 14, 15, 30)]
     # one that already holds takes over after the current one's island ends
     assert _chain([(1, 10, 20), (2, 5, 40)], 2) == [(10, 20, 21, 40)]
-    # ... but only if it still holds one frame later
-    assert _chain([(1, 10, 20), (2, 5, 20)], 2) == []
+    # ... and one that holds now but not beyond the current island takes over at once
+    assert _chain([(1, 10, 20), (2, 5, 20)], 2) == [(10, 10, 11, 20)]
+    # one that has ended before the current phase began does not
+    assert _chain([(1, 10, 20), (2, 5, 10)], 2) == []
     # a gap between the phases breaks the chain; adjacency is enough
     assert _chain([(1, 10, 20), (2, 22, 30)], 2) == []
     assert _chain([(1, 10, 20), (2, 21, 30)], 2) == [(10, 20, 21, 30)]

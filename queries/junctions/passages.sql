@@ -8,7 +8,8 @@
 --                     whose lanes overlap there, the smaller id
 --   passage           consecutive inside frames of one junction; a new stay that starts less than 2 m of path
 --                     after the last one ended is the same passage (a stopped car on the junction boundary)
---   entry_* / exit_*  the first and last frame inside, with the path position s there (to within one sample)
+--   entry_* / exit_*  the first and last frame inside; entry_s_m / exit_s_m, where the path crosses the junction
+--                     boundary, are taken halfway between the samples on either side of it
 --   entry_observed    the actor was seen outside the junction before it entered (else offsets from the start
 --                     and the entry leg are unknown); exit_observed likewise after it left
 --   entry_lane_id     the actor's lane at the last frame before entry that has one outside this junction
@@ -22,6 +23,15 @@
 --                     degrees: |d| <= 30 straight, 30 < d < 150 left, -150 < d < -30 right, |d| >= 150 u_turn
 --   turn              turn_from_map where the map has it, else turn_from_heading; NULL when neither is known
 with
+
+path as (
+    select
+        *,
+        (coalesce(lag(s_m) over w, s_m) + s_m) / 2 as boundary_before_m,
+        (s_m + coalesce(lead(s_m) over w, s_m)) / 2 as boundary_after_m
+    from actor_paths
+    window w as (partition by drive_id, actor_id order by frame)
+),
 
 inside as (
     select
@@ -46,7 +56,7 @@ stays as (
         p.*,
         i.junction_id,
         p.frame - row_number() over (partition by p.drive_id, p.actor_id, i.junction_id order by p.frame) as island
-    from actor_paths as p
+    from path as p
     inner join inside as i
         on p.drive_id = i.drive_id and p.actor_id = i.actor_id and p.frame = i.frame
 ),
@@ -58,8 +68,8 @@ stay_bounds as (
         junction_id,
         min(frame) as entry_frame,
         max(frame) as exit_frame,
-        min(s_m) as entry_s_m,
-        max(s_m) as exit_s_m,
+        min(boundary_before_m) as entry_s_m,
+        max(boundary_after_m) as exit_s_m,
         min(first_frame) as first_frame,
         min(last_frame) as last_frame
     from stays

@@ -8,7 +8,8 @@
 -- The transition rule (queries/match/sequential.sql has the whole story): from phase k, begun at
 -- phase_start_frame in an island that ends at island_end_frame, phase k+1 begins
 --   * where an island of phase k+1 starts, if it starts after phase_start_frame and by island_end_frame + 1;
---   * else right after island_end_frame, if an island of phase k+1 covers phase_start_frame .. island_end_frame + 1.
+--   * else, if an island of phase k+1 already holds at phase_start_frame + 1: right after island_end_frame when
+--     it lasts beyond it, otherwise at phase_start_frame + 1 (phase k lasts one frame).
 -- path_key is the chain's transition frames, zero-padded and concatenated: the least key has the earliest
 -- transitions.
 with recursive chain as (
@@ -32,11 +33,19 @@ with recursive chain as (
         c.actor_id,
         c.phase_index + 1 as phase_index,
         c.chain_start_frame,
-        case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
+        case
+            when j.start_frame > c.phase_start_frame then j.start_frame
+            when j.end_frame >= c.island_end_frame + 1 then c.island_end_frame + 1
+            else c.phase_start_frame + 1
+        end
             as phase_start_frame,
         j.end_frame as island_end_frame,
         c.path_key || lpad(cast(
-            case when j.start_frame > c.phase_start_frame then j.start_frame else c.island_end_frame + 1 end
+            case
+            when j.start_frame > c.phase_start_frame then j.start_frame
+            when j.end_frame >= c.island_end_frame + 1 then c.island_end_frame + 1
+            else c.phase_start_frame + 1
+        end
             as varchar), 12, '0') as path_key
     from chain as c
     inner join phase_islands as j
@@ -45,7 +54,7 @@ with recursive chain as (
     where c.phase_index < $phase_count
         and (
             (j.start_frame > c.phase_start_frame and j.start_frame <= c.island_end_frame + 1)
-            or (j.start_frame <= c.phase_start_frame and j.end_frame >= c.island_end_frame + 1)
+            or (j.start_frame <= c.phase_start_frame and j.end_frame >= c.phase_start_frame + 1)
         )
 )
 

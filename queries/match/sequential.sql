@@ -9,9 +9,9 @@
 -- the phase before it at its transition frame, while that phase still holds (or right after its last frame):
 --   * if an island of the next phase starts after the current phase started, the next phase begins where
 --     that island starts (the earliest such island): "the actor enters the encroachment area";
---   * otherwise the next phase must already hold throughout the current phase's island and one frame beyond
---     it, and begins right after the current phase's island ends: "the other car finished crossing, the Ego
---     is still in the junction".
+--   * otherwise, if the next phase already holds, it begins right after the current phase's island ends when
+--     it still holds then ("the other car finished crossing, the Ego is still in the junction"), else at once,
+--     one frame after the current phase began.
 -- Phase k then lasts from its transition frame to the frame before the next transition; the last phase lasts
 -- to the end of its island. Of several chains from one start, the one with the earliest transitions is kept.
 -- The scenarios that use this query have no phase duration limits.

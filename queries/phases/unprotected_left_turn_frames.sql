@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the ego and a related actor are near or in
 --        the same junction: every measured value the four phases test, each phase's conditions, and
 --        phase_1 .. phase_4 (all of that phase's conditions hold)
--- reads: relations, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
+-- reads: crossing_pairs, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
 --        traffic_light_states
 -- params: $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
 --         $min_offset_from_junction_end_m, $max_offset_from_junction_end_m,
@@ -42,34 +42,33 @@
 with
 
 pair_frames as (
-    -- the ego near or in a junction, and a related actor that comes near or into the same junction while the
-    -- ego is there (its offsets are NULL at the frames it is farther away)
-    select *
-    from (
-        select
-            r.drive_id,
-            r.ego_id,
-            r.actor_id,
-            r.actor_kind,
-            r.frame,
-            r.t_s,
-            e.passage as ego_passage,
-            max(a.passage) over (partition by r.drive_id, r.ego_id, e.passage, r.actor_id) as actor_passage,
-            e.junction_id,
-            e.s_m as ego_s_m,
-            a.s_m as actor_s_m,
-            e.offset_from_junction_start_m as ego_offset_from_junction_start_m,
-            e.offset_from_junction_end_m as ego_offset_from_junction_end_m,
-            a.offset_from_junction_start_m as actor_offset_from_junction_start_m,
-            a.offset_from_junction_end_m as actor_offset_from_junction_end_m
-        from relations as r
-        inner join junction_frames as e
-            on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
-        left join junction_frames as a
-            on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
-            and e.junction_id = a.junction_id
-    ) as near
-    where actor_passage is not null
+    -- every frame of the ego near or in a junction, for each actor that came near or into the same junction
+    -- within the relation range while the ego was there (crossing_pairs); the actor's columns are NULL at the
+    -- frames it is farther from the junction
+    select
+        c.drive_id,
+        c.ego_id,
+        c.actor_id,
+        k.kind as actor_kind,
+        e.frame,
+        e.t_s,
+        c.ego_passage,
+        c.actor_passage,
+        c.junction_id,
+        e.s_m as ego_s_m,
+        a.s_m as actor_s_m,
+        e.offset_from_junction_start_m as ego_offset_from_junction_start_m,
+        e.offset_from_junction_end_m as ego_offset_from_junction_end_m,
+        a.offset_from_junction_start_m as actor_offset_from_junction_start_m,
+        a.offset_from_junction_end_m as actor_offset_from_junction_end_m
+    from crossing_pairs as c
+    inner join junction_frames as e
+        on c.drive_id = e.drive_id and c.ego_id = e.actor_id and c.ego_passage = e.passage
+    inner join (select drive_id, actor_id, min(kind) as kind from tracks group by drive_id, actor_id) as k
+        on c.drive_id = k.drive_id and c.actor_id = k.actor_id
+    left join junction_frames as a
+        on c.drive_id = a.drive_id and c.actor_id = a.actor_id and c.actor_passage = a.passage
+        and e.frame = a.frame
 ),
 
 occupancy as (
