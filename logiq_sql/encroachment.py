@@ -48,7 +48,8 @@ def _paths(con: duckdb.DuckDBPyConnection) -> tuple[pl.DataFrame, np.ndarray, np
             on t.drive_id = a.drive_id and t.actor_id = a.actor_id and t.frame = a.frame
         order by p.drive_id, p.actor_id, p.passage, t.frame
     """).pl()
-    keyed = points.with_columns(pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64).alias("k") - 1)
+    passage_key = pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64) - 1
+    keyed = points.with_columns(passage_key.alias("k"))
     paths = (keyed.group_by("k", maintain_order=True)
              .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"), pl.first("s_m").alias("first_s_m"),
                   pl.col("width_m").median().alias("width_m"), pl.len().alias("n")))
@@ -65,7 +66,8 @@ def _extent(lines: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Least and greatest position along each line of the vertices of its area, projected onto the line."""
     xy, owner = shapely.get_coordinates(areas, return_index=True)
     s = shapely.line_locate_point(lines[owner], shapely.points(xy))
-    frame = pl.DataFrame({"owner": owner, "s": s}).group_by("owner").agg(pl.min("s").alias("lo"), pl.max("s").alias("hi"))
+    frame = pl.DataFrame({"owner": owner, "s": s}).group_by("owner").agg(
+        pl.min("s").alias("lo"), pl.max("s").alias("hi"))
     lo, hi = np.full(len(areas), np.nan), np.full(len(areas), np.nan)
     lo[frame["owner"].to_numpy()] = frame["lo"].to_numpy()
     hi[frame["owner"].to_numpy()] = frame["hi"].to_numpy()

@@ -131,8 +131,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     names = pl.Series([p.name for p in s.phases])
     pairs = pairs.select(
         "ego_id", "actor_id", pl.lit(n, pl.Int64).alias("phase_count"), pl.col("phases_reached").cast(pl.Int64),
-        pl.when(pl.col("phases_reached") < n).then(
-            pl.col("phases_reached").replace_strict(list(range(n)), names.to_list(), default=None)).alias("failed_phase"),
+        pl.when(pl.col("phases_reached") < n).then(pl.col("phases_reached").replace_strict(
+            list(range(n)), names.to_list(), default=None)).alias("failed_phase"),
         pl.when(pl.col("phases_reached") < n).then(pl.col("at_frame")).alias("at_frame"),
         pl.when(pl.col("phases_reached") < n).then(pl.col("t_s")).alias("at_s"),
         pl.when(pl.col("phases_reached") < n).then(_failed(s, pairs.schema)).alias("failed"),

@@ -2,11 +2,14 @@
 
 Why: logiq_sql finds scenarios from the tracks and the map only. SUMO knows what it simulated: each vehicle's
 leader and the gap to it (FCD leaderID, leaderGap), every lane change (lanechange-output), each vehicle's lane
-(FCD lane) and its exact box (FCD front bumper and angle, vType length and width). Labels built from those
-records, never from logiq_sql's SQL, are an independent reference. The definitions, and why, are in
-docs/evaluation.md; parameter values come from the scenario files (``load_scenario``), in SI units.
+(FCD lane and lane position) and its exact box (FCD front bumper and angle, vType length and width), the
+junction's connections, internal lanes and their shapes (the network) and every link's signal state
+(tls_states). Labels built from those records, never from logiq_sql's SQL, are an independent reference. The
+definitions, and why, are in docs/evaluation.md; parameter values come from the scenario files
+(``load_scenario``), in SI units.
 
-Everything is vectorised Polars and numpy over the whole run: no Python loop over rows, pairs or timestamps.
+Everything is vectorised Polars, numpy and shapely over the whole run: no Python loop over rows, pairs or
+timestamps (only over the network's XML elements when it is read).
 """
 
 from __future__ import annotations
@@ -19,20 +22,31 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
+import shapely
 
 from logiq_sql.errors import InputError, ScenarioError, did_you_mean
-from logiq_sql.readers.sumo import read_fcd, read_vtypes, run_file, run_folders, sample_period_s, xml_records
+from logiq_sql.readers.sumo import (
+    _coords,
+    _parse_xml,
+    read_fcd,
+    read_vtypes,
+    run_file,
+    run_folders,
+    sample_period_s,
+    xml_records,
+)
 from logiq_sql.scenario import load_scenario
 from logiq_sql.schema import VEHICLE_KINDS
 
-SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut")
+SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut",
+             "unprotected_left_turn_with_yield_and_traffic_light")
 LABEL_SCHEMA = {
     "drive_id": pl.String, "scenario": pl.String, "ego_id": pl.String, "actor_id": pl.String,
     "start_s": pl.Float64, "end_s": pl.Float64, "source": pl.String,
 }
 EPS = 1e-9  # durations are multiples of dt: compare them to limits without float noise
-_FCD_COLUMNS = ("vehicle_id", "type_id", "x_m", "y_m", "angle_deg", "speed_mps", "lane_id", "leader_id",
-                "leader_gap_m")
+_FCD_COLUMNS = ("vehicle_id", "type_id", "x_m", "y_m", "angle_deg", "speed_mps", "lane_id", "lane_pos_m",
+                "leader_id", "leader_gap_m")
 _SEGMENT_REACH = 2  # lane segments of the actor searched for the ego's edge: an internal lane, then the next edge
 
 
@@ -69,7 +83,8 @@ def scenario_values(names: list[str], overrides: dict[str, str] | None = None) -
 def load_run(folder: str | Path) -> tuple[str, float, pl.DataFrame, pl.DataFrame]:
     """(drive_id, dt_s, rows, changes) of a SUMO run folder.
 
-    rows: one per FCD vehicle row whose vType is known, with frame, kind, vclass, length_m, width_m, edge_id,
+    rows: one per FCD vehicle row whose vType is known (SUMO's lane_id and lane_pos_m among the FCD columns),
+    with frame, kind, vclass, length_m, width_m, edge_id,
     lane_index, lane_run (count of the vehicle's lane changes so far) and lane_segment (count of lane switches
     of any kind so far: lane changes and moves onto the next lane of the route).
     changes: one per lanechange-output record: vehicle_id, frame, t_s, from_lane, to_lane.
@@ -332,11 +347,217 @@ def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.Da
         source=pl.lit("fcd x, y, angle + vType length, width: box distance in range; fcd speed of the ego"))
 
 
+# ------------------------------------------------------------ unprotected_left_turn_with_yield_and_traffic_light
+
+_GREEN = ("G", "g")  # SUMO link states of a green light: priority green and permissive green (must yield)
+_LEFT = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
+
+
+def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
+    """(links, path_lanes, states) of a SUMO run folder, from its network and tls_states file.
+
+    links: one per signalised connection (``tl`` and ``linkIndex`` set): link ("tl:index"), tl, link_index, dir,
+    from_edge, to_edge, total_m (the summed ``length`` of its internal lanes: the path through the junction)
+    and shape (its internal lanes' shapes joined, x/y pairs).
+    path_lanes: every lane a vehicle on a link's path can be on, with the front offset from the link's junction
+    start at lane position 0 (``start_m``; the lane position is added): the incoming edge's lanes (start_m =
+    -length, so the stop line is 0), the internal lanes in order (0, then the lengths before), the outgoing
+    edge's lanes (total_m). lane_length_m and shape_length_m of internal lanes map shape to lane positions.
+    states: tl, t_s, state (SUMO's link-state string, character i = link i), one row per record.
+    Empty frames when the network has no signalised connection.
+    """
+    folder = Path(folder)
+    net_path = run_file(folder, ("*.net.xml", "*.net.xml.gz"), "SUMO network",
+                        "copy the network the run used (e.g. network.net.xml.gz) into the folder.")
+    root = _parse_xml(net_path, "net")
+    lanes = {lane.get("id"): (float(lane.get("length", "nan")), lane.get("shape", ""))
+             for edge in root.iter("edge") for lane in edge.iter("lane")}
+    edge_lanes: dict[str, list[str]] = {}
+    for edge in root.iter("edge"):
+        edge_lanes[edge.get("id", "")] = [lane.get("id") for lane in edge.iter("lane")]
+    # an internal lane's onward connection: (its edge, lane index) -> the next internal lane (via) or None
+    onward = {(c.get("from"), c.get("fromLane")): c.get("via") for c in root.iter("connection")
+              if c.get("from", "").startswith(":")}
+    link_rows, lane_rows = [], []
+    for c in root.iter("connection"):
+        if not c.get("tl") or c.get("linkIndex") in (None, "-1") or not c.get("via"):
+            continue
+        link = f"{c.get('tl')}:{c.get('linkIndex')}"
+        chain, via = [], c.get("via")
+        while via and via in lanes and via not in chain:
+            chain.append(via)
+            edge, _, index = via.rpartition("_")
+            via = onward.get((edge, index))
+        offset, coords = 0.0, []
+        for lane in chain:
+            length, shape = lanes[lane]
+            xy = _coords(shape)
+            coords.append(xy)
+            lane_rows.append((link, lane, offset, length, float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())))
+            offset += length
+        lane_rows += [(link, lane, -lanes[lane][0], None, None) for lane in edge_lanes.get(c.get("from"), [])]
+        lane_rows += [(link, lane, offset, None, None) for lane in edge_lanes.get(c.get("to"), [])]
+        link_rows.append((link, c.get("tl"), int(c.get("linkIndex")), c.get("dir", ""), c.get("from"), c.get("to"),
+                          offset, np.concatenate(coords).ravel().tolist()))
+    links = pl.DataFrame(link_rows, orient="row", schema={
+        "link": pl.String, "tl": pl.String, "link_index": pl.Int64, "dir": pl.String, "from_edge": pl.String,
+        "to_edge": pl.String, "total_m": pl.Float64, "shape": pl.List(pl.Float64)})
+    path_lanes = pl.DataFrame(lane_rows, orient="row", schema={
+        "link": pl.String, "lane_id": pl.String, "start_m": pl.Float64, "lane_length_m": pl.Float64,
+        "shape_length_m": pl.Float64})
+    tls_path = run_file(folder, ("tls_states*.xml", "tls_states*.xml.gz"), "signal state", "", required=False)
+    if links.height and tls_path is None:
+        raise InputError(f"{folder}: the network has traffic lights but the folder has no tls_states file. Fix: "
+                         "run sumo with an additional file holding <timedEvent type=\"SaveTLSStates\" "
+                         "source=\"TLS_ID\" dest=\"tls_states.xml.gz\"/> (logiq-sql simulate junction does).")
+    states = (xml_records(tls_path, "tlsState", ("time", "id", "state"), "</tlsStates>").select(
+        tl="id", t_s=pl.col("time").cast(pl.Float64), state="state") if tls_path is not None
+        else pl.DataFrame(schema={"tl": pl.String, "t_s": pl.Float64, "state": pl.String}))
+    return links, path_lanes, states
+
+
+def conflict_zones(links: pl.DataFrame, path_lanes: pl.DataFrame, ego_widths: list[float],
+                   actor_widths: list[float]) -> pl.DataFrame:
+    """Where the path of a left turn (ego link) crosses the path of a link from another incoming edge.
+
+    Each path is its internal lanes' centre line swept by half a box width (flat ends); the conflict is the
+    intersection of the two areas (shapely, from the network's own lane shapes). Its extent along each path,
+    [enter, leave], is the least and greatest projection of its vertices, in SUMO lane-position metres from the
+    link's junction start. One row per (ego link, actor link, ego width, actor width) whose areas overlap.
+    """
+    schema = {"link": pl.String, "link_f": pl.String, "width_m": pl.Float64, "width_m_f": pl.Float64,
+              "enter_m": pl.Float64, "leave_m": pl.Float64, "enter_m_f": pl.Float64, "leave_m_f": pl.Float64}
+    paths = links.with_row_index("path").select("path", "link", "dir", "from_edge", "shape")
+    pairs = (paths.filter(pl.col("dir").is_in(_LEFT))
+             .join(paths.drop("dir"), how="cross", suffix="_f").filter(pl.col("from_edge") != pl.col("from_edge_f"))
+             .join(pl.DataFrame({"width_m": ego_widths}, schema={"width_m": pl.Float64}), how="cross")
+             .join(pl.DataFrame({"width_m_f": actor_widths}, schema={"width_m_f": pl.Float64}), how="cross"))
+    if pairs.is_empty():
+        return pl.DataFrame(schema=schema)
+    flat = paths["shape"].to_list()
+    lines = shapely.linestrings(np.concatenate([np.reshape(s, (-1, 2)) for s in flat]),
+                                indices=np.repeat(np.arange(len(flat)), [len(s) // 2 for s in flat]))
+    e, f = pairs["path"].to_numpy(), pairs["path_f"].to_numpy()
+    area = shapely.intersection(shapely.buffer(lines[e], pairs["width_m"].to_numpy() / 2, cap_style="flat"),
+                                shapely.buffer(lines[f], pairs["width_m_f"].to_numpy() / 2, cap_style="flat"))
+    xy, pair = shapely.get_coordinates(area, return_index=True)
+    points = shapely.points(xy)
+    along = pl.DataFrame({"pair": pair, "d": shapely.line_locate_point(lines[e[pair]], points),
+                          "d_f": shapely.line_locate_point(lines[f[pair]], points)})
+    # shape metres -> lane-position metres, lane by lane along the path (SUMO's length may differ from the shape's)
+    internal = (path_lanes.filter(pl.col("lane_length_m").is_not_null())
+                .with_columns(shape_start_m=pl.col("shape_length_m").cum_sum().over("link", order_by="start_m")
+                              - pl.col("shape_length_m"),
+                              scale=pl.col("lane_length_m") / pl.col("shape_length_m").clip(lower_bound=1e-9))
+                .select("link", "shape_start_m", "start_m", "scale").sort("shape_start_m"))
+
+    def lane_m(d: str, link: str) -> pl.DataFrame:
+        return (along.join(pairs.with_row_index("pair").select("pair", link=link), on="pair").sort(d)
+                .join_asof(internal, left_on=d, right_on="shape_start_m", by="link", strategy="backward",
+                           check_sortedness=False)
+                .select("pair", m=pl.col("start_m") + (pl.col(d) - pl.col("shape_start_m")) * pl.col("scale")))
+
+    ego_m = lane_m("d", "link").group_by("pair").agg(enter_m=pl.col("m").min(), leave_m=pl.col("m").max())
+    foe_m = lane_m("d_f", "link_f").group_by("pair").agg(enter_m_f=pl.col("m").min(), leave_m_f=pl.col("m").max())
+    return (pairs.with_row_index("pair").with_columns(area_m2=pl.Series(shapely.area(area)))
+            .filter(pl.col("area_m2") > 0).join(ego_m, on="pair").join(foe_m, on="pair").select(*schema))
+
+
+def _on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame) -> pl.DataFrame:
+    """The rows of every vehicle that went onto a signalised link, on the lanes of that link's path, with its
+    link and front_m / centre_m: the front's (centre's) offset from the junction start along the path.
+
+    A vehicle's link is that of the first internal lane of a signalised path it was on. The front is SUMO's
+    lane position; the centre is front - length / 2 (the box centre, as the matcher uses).
+    """
+    internal = path_lanes.filter(pl.col("lane_length_m").is_not_null())
+    first = (rows.join(internal.select("lane_id", "link"), on="lane_id")
+             .group_by("vehicle_id").agg(pl.col("link").sort_by("frame").first()))
+    outer = path_lanes.filter(pl.col("lane_length_m").is_null()).select("link", "lane_id", outer_m="start_m")
+    return (rows.join(first, on="vehicle_id")
+            .join(outer, on=["link", "lane_id"], how="left")
+            .join(internal.select("lane_id", inner_m="start_m"), on="lane_id", how="left")
+            .with_columns(front_m=pl.coalesce("inner_m", "outer_m") + pl.col("lane_pos_m"))
+            .filter(pl.col("front_m").is_not_null())
+            .with_columns(centre_m=pl.col("front_m") - pl.col("length_m") / 2)
+            .join(links.select("link", "tl", "link_index", "dir", "from_edge", "total_m"), on="link")
+            .drop("inner_m", "outer_m"))
+
+
+def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links: pl.DataFrame,
+                                                        path_lanes: pl.DataFrame, states: pl.DataFrame,
+                                                        p: dict, dt: float) -> pl.DataFrame:
+    """The ego, turning left (connection dir l/L), is stopped on green near its junction start while the actor,
+    from another incoming edge and near its own junction start, is about to cross the ego's path; the actor
+    clears the crossing before the ego reaches it, then the ego turns. From the ego's first such frame to its
+    last frame inside the junction."""
+    out_schema = {k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s", "source")}
+    if links.is_empty():
+        return pl.DataFrame(schema=out_schema)
+    paths = _on_paths(rows, links, path_lanes)
+    lo, hi = p["min_offset_from_junction_start"] - EPS, p["max_offset_from_junction_start"] + EPS
+    near = pl.col("centre_m").is_between(lo, hi)
+    light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
+             .unique(["tl", "frame"], keep="last").sort("frame"))
+    stops = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT) & near
+                          & (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS)
+                          & (pl.col("centre_m") >= -p["max_offset_from_traffic_light"] - EPS)
+                          & (pl.col("centre_m") < pl.col("total_m")))
+             .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
+             .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(_GREEN))
+             .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
+                     width_m="width_m"))
+    foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
+        actor_id="vehicle_id", frame="frame", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
+        length_m_f="length_m")
+    zones = conflict_zones(links, path_lanes, stops["width_m"].unique().to_list(),
+                           foes["width_m_f"].unique().to_list())
+    pairs = (stops.join(foes, on="frame").filter((pl.col("ego_id") != pl.col("actor_id"))
+                                                 & (pl.col("from_edge") != pl.col("from_edge_f")))
+             .join(zones, on=["link", "link_f", "width_m", "width_m_f"]))
+    # the ego's box reaches the conflict when its front passes enter_m; the actor's has left it when its rear
+    # (front - length) is past leave_m_f: the first frame of each
+    ego_in = (pairs.select("ego_id", "enter_m").unique()
+              .join(paths.select(ego_id="vehicle_id", frame="frame", front_m="front_m"), on="ego_id")
+              .filter(pl.col("front_m") >= pl.col("enter_m") - EPS)
+              .group_by("ego_id", "enter_m").agg(ego_in_frame=pl.col("frame").min()))
+    actor_out = (pairs.select("actor_id", "leave_m_f", "length_m_f").unique()
+                 .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
+                 .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
+                 .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
+    inside = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT))
+              .group_by(ego_id="vehicle_id")
+              .agg(end_s=pl.col("t_s").filter((pl.col("centre_m") >= -EPS)
+                                              & (pl.col("centre_m") < pl.col("total_m"))).max(),
+                   exited=(pl.col("centre_m") >= pl.col("total_m")).any()))
+    waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
+               .filter((pl.col("frame") < pl.col("ego_in_frame"))
+                       & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
+    # the ego waits until the actor is in the junction: the actor's centre is past its junction start within
+    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor)
+    keys = ["ego_id", "actor_id", "link", "link_f"]
+    runs = _islands(waiting, keys)
+    entered = (runs.select(*keys, "island", "start_frame", "end_frame")
+               .join(paths.select(actor_id="vehicle_id", frame="frame", centre_m_f="centre_m"), on="actor_id")
+               .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
+                       & (pl.col("centre_m_f") >= -EPS))
+               .select(*keys, "island").unique())
+    return (
+        runs.join(entered, on=[*keys, "island"])
+        .group_by(keys).agg(start_s=pl.col("start_s").min())
+        .join(inside.filter("exited"), on="ego_id")
+        .filter(pl.col("end_s") >= pl.col("start_s") - EPS)
+        .select("ego_id", "actor_id", "start_s", "end_s",
+                source=pl.format("net: ego link {} (left) crosses actor link {} (internal lane shapes); "
+                                 "tls_states: green; fcd: lane, pos, speed", "link", "link_f"))
+    )
+
+
 # --------------------------------------------------------------------------------------------------- entry
 
 def label_sumo(run_dir: str | Path, scenarios: list[str] | None = None,
                overrides: dict[str, str] | None = None) -> pl.DataFrame:
-    """Labels (``LABEL_SCHEMA``) of ``scenarios`` (default all three) in one SUMO run folder.
+    """Labels (``LABEL_SCHEMA``) of ``scenarios`` (default all of ``SCENARIOS``) in one SUMO run folder.
 
     Every vehicle of the run is a potential ego; drive_id is the folder name, as ``ingest sumo`` names it.
     """
@@ -348,8 +569,11 @@ def label_sumo(run_dir: str | Path, scenarios: list[str] | None = None,
             labels = follower_vehicle(rows, p)
         elif name == "sut_cut_out":
             labels = sut_cut_out(rows, changes, p, dt)
-        else:
+        elif name == "cyclist_close_to_moving_sut":
             labels = cyclist_close_to_moving_sut(rows, p, dt)
+        else:
+            links, path_lanes, states = load_signals(run_dir)
+            labels = unprotected_left_turn_with_yield_and_traffic_light(rows, links, path_lanes, states, p, dt)
         found.append(labels.select(pl.lit(drive_id).alias("drive_id"), pl.lit(name).alias("scenario"), pl.all()))
     return pl.concat(found).cast(LABEL_SCHEMA).select(*LABEL_SCHEMA).sort(
         "drive_id", "scenario", "ego_id", "actor_id", "start_s")
@@ -387,8 +611,9 @@ def add_label_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "label", help="ground-truth labels from a simulator's own records (for evaluate)", epilog=EPILOG,
         description="Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change "
-                    "output, lanes, vType boxes), independently of logiq_sql's SQL; `logiq-sql evaluate` scores "
-                    "matches against them. Definitions: docs/evaluation.md.")
+                    "output, lanes and lane positions, vType boxes, the network's connections, signal states), "
+                    "independently of logiq_sql's SQL; `logiq-sql evaluate` scores matches against them. "
+                    "Definitions: docs/evaluation.md.")
     p.add_argument("source", choices=["sumo"], help="sumo: run folders written by logiq-sql simulate")
     p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them")
     p.add_argument("--out", required=True, metavar="FILE", help="labels Parquet file to write")

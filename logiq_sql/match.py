@@ -163,7 +163,8 @@ def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "a
               f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
               + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match once first.\n"
                  if s.junctions else "")
-              + "create or replace temp table run_drives as select drive_id from drive_inputs where status = 'ingested';\n")
+              + "create or replace temp table run_drives as "
+                "select drive_id from drive_inputs where status = 'ingested';\n")
     return header + render_steps(scenario_steps(s), values)
 
 
