@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import gzip
 import math
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +15,16 @@ import shapely
 import shapely.affinity
 
 from logiq_sql.errors import InputError, ScenarioError
-from logiq_sql.labels import LABEL_SCHEMA, add_label_parser, box_corners, box_distance_m, label_sumo
+from logiq_sql.labels import (
+    LABEL_SCHEMA,
+    SCENARIOS,
+    add_label_parser,
+    box_corners,
+    box_distance_m,
+    conflict_zones,
+    label_sumo,
+    load_signals,
+)
 from logiq_sql.readers.sumo import read_fcd, read_vtypes, xml_records
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -235,6 +246,117 @@ def test_fixture_cyclist_distances_recomputed_with_shapely(fixture_labels):
     assert len(distance) > 40 and (distance <= 5 + 1e-6).all()
 
 
+# ------------------------------------------------------------ unprotected_left_turn_with_yield_and_traffic_light
+
+LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
+
+
+def _net(run: Path) -> ET.Element:
+    return ET.fromstring(gzip.decompress((run / "network.net.xml.gz").read_bytes()))
+
+
+def _signalised_paths(run: Path) -> pl.DataFrame:
+    """Per signalised connection of the network, read here with ElementTree: its dir, link index, incoming and
+    outgoing edge, and its internal lanes in order with the offset of each from the stop line."""
+    root = _net(run)
+    length = {lane.get("id"): float(lane.get("length")) for lane in root.iter("lane")}
+    onward = {f"{c.get('from')}_{c.get('fromLane')}": c.get("via") for c in root.iter("connection")
+              if c.get("from").startswith(":")}
+    rows = []
+    for c in root.iter("connection"):
+        if c.get("tl") is None:
+            continue
+        lane, start = c.get("via"), 0.0
+        while lane:
+            rows.append((c.get("dir"), int(c.get("linkIndex")), c.get("from"), c.get("to"), lane, start,
+                         length[lane]))
+            start += length[lane]
+            lane = onward.get(lane)
+    frame = pl.DataFrame(rows, orient="row", schema=["dir", "link_index", "from_edge", "to_edge", "lane_id",
+                                                     "start_m", "length_m"])
+    return frame.with_columns(total_m=pl.col("length_m").sum().over("link_index")).drop("length_m")
+
+
+def _offsets(run: Path) -> pl.DataFrame:
+    """FCD rows with the vehicle's connection through the junction (its first internal lane's) and its box
+    centre's offset from the stop line along that connection (lane position - length / 2)."""
+    paths = _signalised_paths(run)
+    incoming = {lane.get("id"): float(lane.get("length")) for edge in _net(run).iter("edge")
+                if edge.get("to") == "C" for lane in edge.iter("lane")}
+    fcd = _fcd(run).sort("vehicle_id", "t_s")
+    link = (fcd.join(paths.select("lane_id", "link_index"), on="lane_id")
+            .group_by("vehicle_id").agg(pl.col("link_index").first()))
+    edge = pl.col("lane_id").str.extract(r"^(.*)_\d+$")
+    return (fcd.join(link, on="vehicle_id")
+            .join(paths.select("link_index", "dir", "from_edge", "to_edge", "total_m").unique(), on="link_index")
+            .join(paths.select("lane_id", "start_m"), on="lane_id", how="left")
+            .with_columns(front_m=pl.when(pl.col("start_m").is_not_null())
+                          .then(pl.col("start_m") + pl.col("lane_pos_m"))
+                          .when(edge == pl.col("from_edge"))
+                          .then(pl.col("lane_pos_m") - pl.col("lane_id").replace_strict(incoming, default=None))
+                          .when(edge == pl.col("to_edge")).then(pl.col("total_m") + pl.col("lane_pos_m")))
+            .with_columns(centre_m=pl.col("front_m") - pl.col("length_m") / 2))
+
+
+@needs_fixtures
+def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
+    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == LEFT_TURN)
+    assert labels.height >= 20
+    rows = _offsets(JUNCTION)
+    states = xml_records(JUNCTION / "tls_states.xml.gz", "tlsState", ("time", "state"), "</tlsStates>").select(
+        t_s=pl.col("time").cast(pl.Float64), state="state")
+    ego = rows.rename(lambda c: c if c in ("vehicle_id", "t_s") else f"e_{c}")
+    actor = rows.rename(lambda c: c if c in ("vehicle_id", "t_s") else f"a_{c}")
+    at_start = (labels.join(ego, left_on=["ego_id", "start_s"], right_on=["vehicle_id", "t_s"])
+                .join(actor, left_on=["actor_id", "start_s"], right_on=["vehicle_id", "t_s"])
+                .join(states, left_on="start_s", right_on="t_s"))
+    assert at_start.height == labels.height
+    # the ego turns left through the signalised junction (its internal lanes are those of a dir="l" connection)
+    assert at_start["e_dir"].is_in(["l", "L"]).all() and at_start["e_kind"].eq("vehicle").all()
+    # a vehicle from another incoming edge; both within 10 m of their stop lines, box centre by lane position
+    assert at_start["a_kind"].eq("vehicle").all()
+    assert (at_start["a_from_edge"] != at_start["e_from_edge"]).all()
+    for who in ("e", "a"):
+        assert at_start[f"{who}_centre_m"].is_between(-10 - 1e-6, 10 + 1e-6).all()
+    # the ego is stopped (<= 2 kph) on green: character link_index of SUMO's state string is G or g
+    assert (at_start["e_speed_mps"] <= 2 / 3.6 + 1e-9).all()
+    signal = at_start.select(pl.col("state").str.slice(pl.col("e_link_index"), 1))["state"]
+    assert signal.is_in(["G", "g"]).all()
+    # the interval ends at the ego's last step with its centre inside the junction; it then leaves, after the actor
+    span = rows.group_by("vehicle_id").agg(first_s=pl.col("t_s").min(), last_s=pl.col("t_s").max())
+    at_end = labels.join(ego, left_on=["ego_id", "end_s"], right_on=["vehicle_id", "t_s"])
+    after = labels.join(ego, left_on=["ego_id", (pl.col("end_s") + 0.1).round(1)], right_on=["vehicle_id", "t_s"])
+    assert at_end.height == after.height == labels.height
+    assert ((at_end["e_centre_m"] >= 0) & (at_end["e_centre_m"] < at_end["e_total_m"])).all()
+    assert (after["e_centre_m"] >= after["e_total_m"]).all()
+    out = rows.filter(pl.col("front_m") >= pl.col("total_m")).group_by("vehicle_id").agg(out_s=pl.col("t_s").min())
+    order = labels.join(out, left_on="ego_id", right_on="vehicle_id").join(
+        out, left_on="actor_id", right_on="vehicle_id", suffix="_actor")
+    assert order.height == labels.height and (order["out_s_actor"] < order["out_s"]).all()
+    within = labels.join(span, left_on="ego_id", right_on="vehicle_id")
+    assert ((within["first_s"] <= within["start_s"]) & (within["start_s"] <= within["end_s"])
+            & (within["end_s"] < within["last_s"])).all()
+
+
+@needs_fixtures
+def test_conflict_zones_are_sumo_foes():
+    """Every pair of paths whose car-wide areas cross is a pair SUMO's own right-of-way table (the junction's
+    <request foes>) calls foes; each crossing lies inside both paths."""
+    links, path_lanes, _ = load_signals(JUNCTION)
+    zones = conflict_zones(links, path_lanes, [1.8], [1.8])
+    assert zones.height >= 20
+    (junction,) = [j for j in _net(JUNCTION).iter("junction") if j.get("id") == "C"]
+    foes = {(int(r.get("index")), i) for r in junction.iter("request")
+            for i, bit in enumerate(reversed(r.get("foes"))) if bit == "1"}
+    index = dict(zip(links["link"], links["link_index"], strict=True))
+    assert all((index[a], index[b]) in foes for a, b in zones.select("link", "link_f").iter_rows())
+    total = dict(zip(links["link"], links["total_m"], strict=True))
+    for side in ("", "_f"):
+        ends = zones.select(lo=f"enter_m{side}", hi=f"leave_m{side}",
+                            total=pl.col(f"link{side}").replace_strict(total))
+        assert ((ends["lo"] >= -1e-6) & (ends["lo"] < ends["hi"]) & (ends["hi"] <= ends["total"] + 1e-6)).all()
+
+
 @needs_fixtures
 def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     from logiq_sql.evaluate import add_evaluate_parser, evaluate
@@ -255,7 +377,7 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     ingest("sumo", [JUNCTION], db)
     match(db, ego="every:4")
     result = evaluate(db, out)
-    assert set(result.scores["scenario"]) == {"follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"}
+    assert set(result.scores["scenario"]) == set(SCENARIOS)
     events = result.events.group_by("scenario", "role").len()
     assert events["len"].sum() == result.scores["labels"].sum() + result.scores["predictions"].sum()
     for col in ("precision", "recall", "f1", "ba_timestamp", "tpr", "tnr"):
