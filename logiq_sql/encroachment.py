@@ -15,10 +15,11 @@ The one geometric step of junction matching that is not SQL (like localisation a
 
 from __future__ import annotations
 
-import duckdb
 import numpy as np
 import polars as pl
 import shapely
+
+from logiq_sql.engines import as_engine
 
 ENCROACHMENTS_SCHEMA = {
     "drive_id": pl.String, "ego_id": pl.String, "ego_passage": pl.Int64, "actor_id": pl.String,
@@ -29,10 +30,10 @@ ENCROACHMENTS_SCHEMA = {
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 
 
-def _paths(con: duckdb.DuckDBPyConnection) -> tuple[pl.DataFrame, np.ndarray, np.ndarray]:
+def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray]:
     """Every passage named by a crossing pair: its key, the path position of its first point, its centre line
     and its swept path."""
-    points = con.sql("""
+    points = engine.frame("""
         with wanted as (
             select drive_id, ego_id as actor_id, ego_passage as passage from crossing_pairs
             union
@@ -47,7 +48,7 @@ def _paths(con: duckdb.DuckDBPyConnection) -> tuple[pl.DataFrame, np.ndarray, np
         inner join actor_paths as a
             on t.drive_id = a.drive_id and t.actor_id = a.actor_id and t.frame = a.frame
         order by p.drive_id, p.actor_id, p.passage, t.frame
-    """).pl()
+    """)
     passage_key = pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64) - 1
     keyed = points.with_columns(passage_key.alias("k"))
     paths = (keyed.group_by("k", maintain_order=True)
@@ -74,12 +75,14 @@ def _extent(lines: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return lo, hi
 
 
-def encroachments(con: duckdb.DuckDBPyConnection) -> pl.DataFrame:
-    """The ``encroachments`` rows of every crossing pair whose paths share an area."""
-    pairs = con.sql("select * from crossing_pairs").pl()
+def encroachments(con) -> pl.DataFrame:
+    """The ``encroachments`` rows of every crossing pair whose paths share an area. ``con``: a DuckDB connection
+    or an engine (logiq_sql/engines.py) holding the crossing_pairs, passages and actor_paths steps."""
+    engine = as_engine(con)
+    pairs = engine.frame("crossing_pairs")
     if pairs.is_empty():
         return pl.DataFrame(schema=ENCROACHMENTS_SCHEMA)
-    paths, lines, swept = _paths(con)
+    paths, lines, swept = _paths(engine)
     key = paths.select("drive_id", "actor_id", "passage", "k")
     pairs = (pairs
              .join(key.rename({"actor_id": "ego_id", "passage": "ego_passage", "k": "ek"}),

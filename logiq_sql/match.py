@@ -24,9 +24,10 @@ import polars as pl
 from logiq_sql import db, units
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.encroachment import encroachments
+from logiq_sql.engines import Engine, as_engine, check_engine, open_engine
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
-from logiq_sql.sql import materialise, query_text, render_steps
+from logiq_sql.sql import query_text, render_steps
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -224,24 +225,25 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
                 have.add(column)
 
 
-def prepare_relations(con: duckdb.DuckDBPyConnection, group: list[Scenario], values: dict[str, object]) -> None:
+def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scenario],
+                      values: dict[str, object]) -> None:
     """The steps every scenario of ``group`` (one lane tolerance) shares: egos, relations and, when one of them
     needs it, the junction geometry and the encroachment areas."""
-    materialise(con, "egos", "relations/egos.sql", values)
+    engine = as_engine(con)
+    engine.materialise("egos", "relations/egos.sql", values)
     for table, rel in RELATION_STEPS:
-        materialise(con, table, rel, values)
+        engine.materialise(table, rel, values)
     if any(s.junctions for s in group):
         for table, rel in JUNCTION_STEPS:
-            materialise(con, table, rel, values)
-        con.register("_encroachments", encroachments(con))
-        con.execute("create or replace temp table encroachments as select * from _encroachments")
-        con.unregister("_encroachments")
+            engine.materialise(table, rel, values)
+        engine.register("encroachments", encroachments(engine))
 
 
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
           overrides: dict[str, str] | None = None, drives: list[str] | None = None,
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
-          progress: Callable[[str], None] | None = None) -> MatchResult:
+          progress: Callable[[str], None] | None = None, engine: str = "duckdb", spark_master: str | None = None,
+          spark_tables: str | Path | None = None) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -253,15 +255,25 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         drives: restrict the run to these drive ids (default: every ingested drive).
         relation_range: keep ego-actor pairs whose centres are at most this far apart.
         out: also write every output table as Parquet into this folder.
+        engine: ``duckdb`` (default), ``spark`` or ``polars``: what runs the query files (docs/engines.md); the
+            results are stored in ``db_path`` the same way whatever the engine.
+        spark_master: Spark master URL for ``engine="spark"`` (default: $SPARK_MASTER, else ``local[2]``).
+        spark_tables: folder the canonical tables are written to as Parquet for Spark (default: a temporary one).
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {})
     ego_values = parse_ego(ego)
     range_m = units.parse(relation_range, "length", "--relation-range")
     con = db.connect(db_path)
+    runner = None
     try:
         run_drives = _run_drives(con, drives)
         con.register("run_drives", run_drives)
+        check_engine(engine, [rel for s in chosen for _, rel in scenario_steps(s)]
+                     + ["match/identify.sql", *(rel for s in chosen for rel in s.kpi_queries)])
+        runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
+        if runner.name != "duckdb":  # the DuckDB engine reads the registered frame directly
+            runner.register("run_drives", run_drives)
         _ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
         results = []
@@ -269,18 +281,21 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         for s in chosen:
             by_tolerance.setdefault(_lane_tolerance(s), []).append(s)
         for tolerance, group in sorted(by_tolerance.items()):
-            prepare_relations(con, group, run_values(group[0], ego_values, range_m))
-            say(f"relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
+            prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
+            say(f"relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
             for s in group:
-                results.append(_run_scenario(con, s, run_values(s, ego_values, range_m)))
+                results.append(_run_scenario(runner, s, run_values(s, ego_values, range_m)))
                 say(f"{s.name}: {results[-1][0].height} matches")
+        runner.persist(PERSISTED)
         _store(con, run_id, ego, run_drives, results)
         result = _result(con, run_drives, [s.name for s in chosen])
         if out is not None:
             export(con, out)
         return result
     finally:
+        if runner is not None:
+            runner.close()
         con.close()
 
 
@@ -295,15 +310,15 @@ def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.
     return known
 
 
-def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str, object]):
+def _run_scenario(engine: Engine, s: Scenario, values: dict[str, object]):
     for table, rel in phase_steps(s):
-        materialise(con, table, rel, values)
-    materialise(con, "scenario_matches", "match/identify.sql", values)
-    matches = con.sql("select * from scenario_matches").pl()
+        engine.materialise(table, rel, values)
+    engine.materialise("scenario_matches", "match/identify.sql", values)
+    matches = engine.frame("scenario_matches")
     metrics = matches.select("match_id")
     for rel in s.kpi_queries:
-        materialise(con, "_kpi", rel, values)
-        metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
+        engine.materialise("_kpi", rel, values)
+        metrics = metrics.join(engine.frame("_kpi"), on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
                           *[pl.col(c) for c in _metric_columns(s)])
     phases = pl.concat([
@@ -312,7 +327,7 @@ def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str,
                        *[pl.col(f"p{i}_{c}").alias(c) for c in ("start_frame", "end_frame", "start_s", "end_s")])
         for i, phase in enumerate(s.phases, 1)
     ])
-    egos = con.sql("select drive_id, count(*) as egos from egos group by drive_id").pl()
+    egos = engine.frame("select drive_id, count(*) as egos from egos group by drive_id")
     return matches, phases, kpis, _coverage_samples(s, metrics), _coverage_buckets(s), s, egos
 
 
