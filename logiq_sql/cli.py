@@ -48,7 +48,8 @@ def cmd_match(args: argparse.Namespace) -> int:
 
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
-                   progress=_say(args.quiet))
+                   progress=_say(args.quiet), engine=args.engine, spark_master=args.spark_master,
+                   spark_tables=args.spark_tables)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -76,7 +77,8 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     from logiq_sql.match import render
 
-    print(render(args.scenario, _set_pairs(args.set), ego=args.ego, relation_range=args.relation_range))
+    print(render(args.scenario, _set_pairs(args.set), ego=args.ego, relation_range=args.relation_range,
+                 engine=args.engine))
     return 0
 
 
@@ -149,6 +151,14 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
     p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--engine", choices=["duckdb", "spark", "polars"], default="duckdb",
+                   help="what runs the queries: duckdb (default), spark (pip install 'logiq-sql[spark]', Java 17) "
+                        "or polars (the queries Polars SQL can run; docs/engines.md). Results land in --db either way")
+    p.add_argument("--spark-master", metavar="URL",
+                   help="Spark master for --engine spark (default: $SPARK_MASTER, else local[2])")
+    p.add_argument("--spark-tables", metavar="DIR",
+                   help="where --engine spark writes the canonical tables as Parquet (partitioned by drive_id) for "
+                        "Spark to read; on a cluster, a folder every executor can read (default: a temporary folder)")
     p.set_defaults(func=cmd_match)
 
     p = sub.add_parser("scenarios", help="list scenarios with their parameters and defaults", epilog=EPILOG)
@@ -159,11 +169,15 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=EPILOG,
                        description="Print one statement that finds the scenario's matches: SET VARIABLE lines bind "
                                    "the parameters, then the query files as CTEs. Runs as-is in DuckDB against a "
-                                   "file written by ingest.")
+                                   "file written by ingest. With --engine spark: the same steps in Spark SQL, the "
+                                   "parameter values listed as comments, to bind with spark.sql(text, args=...).")
     p.add_argument("scenario", metavar="SCENARIO")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     p.add_argument("--ego", default="auto", help="as for match")
     p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
+    p.add_argument("--engine", choices=["duckdb", "spark"], default="duckdb",
+                   help="duckdb (default): SET VARIABLE lines and the statement; spark: the Spark SQL statement with "
+                        "the values to bind (spark.sql(text, args=...)) listed as comments above it")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("explain", help="why a scenario did not match: the first phase and condition that failed",

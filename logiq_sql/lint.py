@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import polars as pl
 import sqlglot
 from sqlglot import exp
 from sqlglot.errors import ErrorLevel
@@ -16,10 +17,12 @@ from logiq_sql.paths import data_dir
 
 # function names (as sqlglot spells the node class) that do not carry over to Spark
 _NOT_PORTABLE_FUNCS = {
-    "List": "list(... order by ...) loses its order on Spark; aggregate without ordering or join instead",
     "Columns": "COLUMNS() is DuckDB-only; name the columns",
     "Length": "len() becomes a string function on Spark; use length() on strings only",
-    "EpochMs": "epoch_ms() becomes its inverse on Spark; keep time as t_s / frame numbers",
+    "UnixToTime": "to_timestamp() / epoch_ms() drop fractional seconds or become their inverse on Spark; keep time "
+                  "as t_s / frame numbers",
+    "TimeToUnix": "epoch() drops fractional seconds on Spark; keep time as t_s / frame numbers",
+    "PercentileCont": "quantile_cont(x, p) gets the wrong argument count on Spark; rank with row_number() instead",
 }
 
 
@@ -40,6 +43,13 @@ def lint_sql(text: str, where: str) -> list[str]:
         reason = _NOT_PORTABLE_FUNCS.get(type(node).__name__)
         if reason:
             problems.append(f"{where}: {reason}")
+    for agg in tree.find_all(exp.ArrayAgg):
+        if agg.find(exp.Order):
+            problems.append(f"{where}: list(... order by ...) becomes collect_list on Spark and loses its order; "
+                            "aggregate without ordering or join instead")
+    for bracket in tree.find_all(exp.Bracket):
+        if bracket.find(exp.Slice):
+            problems.append(f"{where}: list slices x[a:b] do not run on Spark; keep lists out of the SQL")
     for node in tree.find_all(exp.Div):
         if not _guarded(node):
             problems.append(f"{where}: division '{node.sql('duckdb')}' is not guarded; Spark raises on division by "
@@ -71,3 +81,67 @@ def lint_tree(root: Path | None = None) -> list[str]:
     for path in sorted(root.rglob("*.sql")):
         problems += lint_sql(path.read_text(), str(path.relative_to(root.parent)))
     return problems
+
+
+# tables the queries read that are not canonical inputs: what the matcher registers or stores around the steps
+def _side_tables():
+    from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES
+    from logiq_sql.encroachment import ENCROACHMENTS_SCHEMA
+    from logiq_sql.schema import TRACKS
+
+    return {"run_drives": {"drive_id": pl.String}, "tracks_raw": TRACKS.polars_schema,
+            "encroachments": ENCROACHMENTS_SCHEMA, "coverage_samples": COVERAGE_SAMPLES.polars_schema,
+            "coverage_buckets": COVERAGE_BUCKETS.polars_schema}
+
+
+def spark_problems(spark, root: Path | None = None) -> list[str]:
+    """Every query file, transpiled to Spark with its parameters bound, put through Spark's analyser over empty
+    canonical tables: in each scenario's step order (a step's view is what the next steps read), then the
+    staging and coverage queries. Catches what sqlglot passes through but Spark cannot run. Needs a Spark
+    session (tests/test_spark.py)."""
+    from pyspark.sql import types as T
+
+    from logiq_sql.engines import INPUT_TABLES, _spark_type, spark_text
+    from logiq_sql.match import parse_ego, run_values, scenario_steps
+    from logiq_sql.scenario import list_scenarios
+    from logiq_sql.sql import bind
+
+    tables = {t.name: t.polars_schema for t in INPUT_TABLES} | _side_tables()
+    for name, columns in tables.items():
+        struct = T.StructType([T.StructField(c, _spark_type(d), True) for c, d in columns.items()])
+        spark.createDataFrame([], struct).createOrReplaceTempView(name)
+    runs: list[tuple[str, str, dict[str, object]]] = []
+    for s in list_scenarios():
+        values = run_values(s, parse_ego("auto"), 200.0)
+        runs += [(t, rel, values) for t, rel in scenario_steps(s)]
+        runs += [("scenario_matches", "match/identify.sql", values), *[("_kpi", rel, values) for rel in s.kpi_queries]]
+    runs += [("_staged", "staging/tracks.sql", {}), ("_coverage", "coverage/histogram.sql", {})]
+    problems, seen = [], set()
+    for table, rel, values in runs:
+        seen.add(rel)
+        problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
+    root = root or data_dir("queries")
+    for path in sorted(root.rglob("*.sql")):
+        rel = str(path.relative_to(root))
+        if rel not in seen:
+            problems.append(f"queries/{rel}: no scenario step runs it, so it was not checked on Spark")
+    return problems
+
+
+def _first_line(exc: Exception) -> str:
+    java = getattr(exc, "java_exception", None)  # py4j errors carry the JVM's message there
+    text = str(java.toString()) if java is not None else str(exc)
+    return text.strip().splitlines()[0]
+
+
+def spark_problems_in(spark, relative: str, spark_text: str, args: dict[str, object],
+                      table: str | None = None) -> list[str]:
+    """Spark's analyser on one transpiled query (nothing runs). On success the step's schema becomes an empty
+    view ``table``, so the next steps are analysed against it and each query on its own."""
+    try:
+        analysed = spark.sql(spark_text, args=args)
+    except Exception as exc:  # noqa: BLE001 - Spark raises its own classes; the message is the finding
+        return [f"queries/{relative}: does not run on Spark: {_first_line(exc)}"]
+    if table is not None:
+        spark.createDataFrame([], analysed.schema).createOrReplaceTempView(table)
+    return []

@@ -24,7 +24,7 @@ import polars as pl
 from logiq_sql import db, units
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.encroachment import encroachments
-from logiq_sql.engines import Engine, as_engine, check_engine, open_engine
+from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import query_text, render_steps
@@ -156,10 +156,13 @@ def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
 
 
 def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "auto",
-           relation_range: str = DEFAULT_RELATION_RANGE) -> str:
-    """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set."""
+           relation_range: str = DEFAULT_RELATION_RANGE, engine: str = "duckdb") -> str:
+    """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set (DuckDB),
+    or as Spark SQL with the values to bind listed above it (``engine="spark"``)."""
     (s,) = resolve_scenarios([scenario], overrides or {})
     values = run_values(s, parse_ego(ego), units.parse(relation_range, "length", "--relation-range"))
+    if engine != "duckdb":
+        return render_for_engine(engine, s, scenario_steps(s), values)
     header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
               f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
               + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match once first.\n"

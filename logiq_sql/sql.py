@@ -68,13 +68,17 @@ def _literal(value: object) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
-def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
-    """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
-    the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
+def _used(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
     used: dict[str, object] = {}
     for _, rel in steps:
         used.update(bind(rel, values))
-    lines = [f"set variable {name} = {_literal(v)};" for name, v in used.items()]
+    return used
+
+
+def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
+    """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
+    the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
+    lines = [f"set variable {name} = {_literal(v)};" for name, v in _used(steps, values).items()]
     ctes = []
     for name, rel in steps[:-1]:
         body = "\n".join("    " + line if line else "" for line in query_text(rel).rstrip().splitlines())

@@ -29,6 +29,23 @@ def test_lint_catches_what_transpiling_lets_through():
         "r.sql: RANGE window frames do not run on Polars; use ROWS over frames"]
 
 
+def test_lint_catches_what_sqlglot_transpiles_silently_wrong():
+    where = "q.sql"
+    found = {
+        "select list(x order by t) from a": "becomes collect_list on Spark and loses its order",
+        "select to_timestamp(t_s) from a": "drop fractional seconds or become their inverse",
+        "select epoch_ms(t_ms) from a": "drop fractional seconds or become their inverse",
+        "select epoch(ts) from a": "epoch() drops fractional seconds",
+        "select quantile_cont(x, 0.5) from a": "wrong argument count",
+        "select l[1:2] from a": "list slices",
+        "select len(s) from a": "len() becomes a string function",
+        "select columns('x.*') from a": "COLUMNS() is DuckDB-only",
+    }
+    for text, reason in found.items():
+        problems = lint_sql(text, where)
+        assert len(problems) == 1 and reason in problems[0], (text, problems)
+
+
 def test_every_query_transpiles_to_spark_with_named_markers():
     for path in sorted(data_dir("queries").rglob("*.sql")):
         (spark,) = sqlglot.transpile(path.read_text(), read="duckdb", write="spark")

@@ -79,9 +79,10 @@ stay_bounds as (
 merged as (
     select
         *,
-        sum(starts_new) over (
+        -- bigint on every engine (DuckDB sums integers into a 128-bit integer, Spark into bigint)
+        cast(sum(starts_new) over (
             partition by drive_id, actor_id order by entry_frame rows between unbounded preceding and current row
-        ) as passage
+        ) as bigint) as passage
     from (
         select
             *,

@@ -1,0 +1,172 @@
+"""The same queries/ SQL on Spark (local mode) gives the same matches, phases, KPIs and coverage as DuckDB.
+
+Marked ``spark``: part of ``make test`` (CI installs the [spark] extra; Java 17 is on the machines). Without
+PySpark the tests are skipped with the reason, except under CI=true, where they fail. One Spark session for the
+module (local[2], no UI, 4 shuffle partitions).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import time
+from pathlib import Path
+
+import duckdb
+import polars as pl
+import pytest
+import sqlglot
+
+from logiq_sql import ingest, match
+from logiq_sql.lint import spark_problems
+
+pytestmark = pytest.mark.spark
+DATA = Path(__file__).parent / "data"
+LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
+REL_TOL = 1e-9  # Spark's sums and cos/sin may differ from DuckDB's in the last bits (docs/engines.md)
+
+
+@pytest.fixture(scope="module")
+def spark():
+    try:
+        import pyspark  # noqa: F401
+    except ImportError:
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail("CI=true but PySpark is not installed: pip install '.[spark]' (make venv does).")
+        pytest.skip("PySpark is not installed: pip install 'logiq-sql[spark]' (needs Java 17).")
+    from logiq_sql.engines import spark_session
+
+    started = time.perf_counter()
+    session = spark_session("local[2]")
+    session.sparkContext.setLogLevel("ERROR")
+    print(f"\nSpark session start: {time.perf_counter() - started:.1f} s")
+    yield session
+    session.stop()
+
+
+def _twin(tmp: Path, name: str, ingests) -> tuple[Path, Path]:
+    """One ingest, copied: the DuckDB engine matches one file, the Spark engine the other."""
+    duck = tmp / f"{name}_duckdb.duckdb"
+    for fmt, paths in ingests:
+        ingest(fmt, paths, duck)
+    spark = tmp / f"{name}_spark.duckdb"
+    shutil.copy(duck, spark)
+    return duck, spark
+
+
+def _both(duck: Path, spark_db: Path, **kwargs) -> dict[str, float]:
+    seconds = {}
+    for engine, db in (("duckdb", duck), ("spark", spark_db)):
+        started = time.perf_counter()
+        match(db, engine=engine, **kwargs)
+        seconds[engine] = time.perf_counter() - started
+    print(f"\nmatch {kwargs.get('scenarios')}: DuckDB {seconds['duckdb']:.1f} s, Spark {seconds['spark']:.1f} s")
+    return seconds
+
+
+OUTPUTS = {  # table -> sort key (every output table the matcher writes, except the run log)
+    "matches": ["match_id"],
+    "match_phases": ["match_id", "phase_index"],
+    "kpis": ["match_id"],
+    "coverage_samples": ["match_id", "item"],
+    "coverage": ["scenario", "item", "bucket"],
+    "drive_scenarios": ["drive_id", "scenario"],
+    "relations": ["drive_id", "ego_id", "actor_id", "frame"],
+    "ego_lanes": ["drive_id", "ego_id", "frame"],
+}
+
+
+def _read(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame | None:
+    with duckdb.connect(str(db), read_only=True) as con:
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables()").fetchall()}
+        return con.sql(f"select * from {table}").pl().sort(keys or OUTPUTS[table]) if table in have else None
+
+
+def _assert_same(duck: Path, spark_db: Path, tables=OUTPUTS) -> None:
+    for table, keys in tables.items():
+        a, b = _read(duck, table, keys), _read(spark_db, table, keys)
+        if a is None:
+            assert b is None, table
+            continue
+        assert a.schema == b.schema, table
+        assert a.height == b.height, (table, a.height, b.height)
+        for col, dtype in a.schema.items():
+            x, y = a[col].to_list(), b[col].to_list()
+            if dtype == pl.Float64:
+                bad = [(i, p, q) for i, (p, q) in enumerate(zip(x, y, strict=True))
+                       if (p is None) != (q is None) or (p is not None and not math.isclose(p, q, rel_tol=REL_TOL,
+                                                                                               abs_tol=1e-12))]
+                assert not bad, (table, col, bad[:3])
+            else:
+                assert x == y, (table, col)
+
+
+@pytest.fixture(scope="module")
+def real(tmp_path_factory):
+    cr = DATA / "commonroad_ngsim/scenarios_2018b"
+    nu = DATA / "nuscenes_mini_scenarionet"
+    return _twin(tmp_path_factory.mktemp("real"), "real", [
+        ("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"]),
+        ("scenarionet", [nu / "sd_nuscenes_v1.0-mini_scene-0103.pkl"])])
+
+
+def test_spark_matches_duckdb_on_real_drives(spark, real):
+    """NGSIM US-101 (followers, cut-outs; every 4th car the SUT in turn, for time) and nuScenes scene-0103 (the
+    recorded ego and the cyclist, within 6 m): one run of the three scenarios on each engine."""
+    duck, spark_db = real
+    _both(duck, spark_db, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"],
+          overrides={"max_distance_from_cyclist": "6m"}, ego="every:4")
+    counts = _read(duck, "matches").group_by("scenario").len().sort("scenario").rows()
+    assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
+    _assert_same(duck, spark_db)
+
+
+def test_spark_matches_duckdb_on_a_simulated_junction(spark, tmp_path_factory):
+    """The bundled SUMO junction (signal states known), every 40th vehicle as the SUT: left turns with PET and
+    the encroachment areas (shapely between the Spark steps)."""
+    duck, spark_db = _twin(tmp_path_factory.mktemp("sumo"), "sumo", [("sumo", [DATA / "sumo/junction_s1"])])
+    _both(duck, spark_db, scenarios=[LEFT_TURN], ego="every:40")
+    assert _read(duck, "matches").height > 0
+    _assert_same(duck, spark_db, {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"],
+                                  "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]})
+
+
+@pytest.fixture(scope="module")
+def analysed(spark):
+    """Every query file through Spark's analyser; leaves empty views of every table and step behind."""
+    return spark_problems(spark)
+
+
+def test_every_query_analyses_on_spark(analysed):
+    """Every query file, transpiled and with its parameters bound, passes Spark's analyser over empty canonical
+    tables (in scenario order, so each step reads the views of the steps before it)."""
+    assert analysed == []
+
+
+def test_lint_runs_queries_on_spark_and_reports_what_fails(spark, tmp_path):
+    """A function DuckDB has and Spark does not: sqlglot passes it through; Spark's analyser names it."""
+    root = tmp_path / "queries"
+    (root / "phases").mkdir(parents=True)
+    (root / "phases/odd.sql").write_text("select regexp_full_match(kind, 'c.*') as m from tracks")
+    from logiq_sql.lint import spark_problems_in
+
+    text = sqlglot.transpile((root / "phases/odd.sql").read_text(), read="duckdb", write="spark")[0]
+    problems = spark_problems_in(spark, "phases/odd.sql", text, {})
+    assert len(problems) == 1 and "regexp_full_match" in problems[0].lower(), problems
+
+
+def test_rendered_spark_sql_binds_its_parameters_and_analyses(spark, analysed):
+    """render --engine spark: the values are comments and args, never SQL text; Spark accepts the statement over
+    the (empty) tables of test_every_query_analyses_on_spark."""
+    from logiq_sql.engines import render_spark_steps
+    from logiq_sql.match import parse_ego, render, resolve_scenarios, run_values, scenario_steps
+
+    for s in resolve_scenarios(None, {"max_distance_from_cyclist": "6m"}):
+        values = run_values(s, parse_ego("auto"), 200.0)
+        text, args = render_spark_steps(scenario_steps(s), values)
+        assert "$" not in text and all(f":{name}" in text for name in args)
+        spark.sql(text, args=args).schema  # analysed, not run
+        printed = render(s.name, {"max_distance_from_cyclist": "6m"}, engine="spark")
+        assert printed.endswith(text + "\n")
+        assert "-- :max_distance_from_cyclist_m = 6.0" in printed or "max_distance_from_cyclist_m" not in args
