@@ -119,7 +119,8 @@ def _spark_type(dtype: pl.DataType | type[pl.DataType]):
 
 
 def spark_session(master: str | None = None):
-    """The active Spark session, or a new one on ``master`` (else $SPARK_MASTER, else local[2])."""
+    """The active Spark session, or a new one on ``master`` (else $SPARK_MASTER, else spark-submit's --master, else
+    local[2])."""
     try:
         from pyspark.sql import SparkSession
     except ImportError:
@@ -127,8 +128,11 @@ def spark_session(master: str | None = None):
     active = SparkSession.getActiveSession()
     if active is not None:
         return active
-    master = master or os.environ.get(SPARK_MASTER_ENV) or DEFAULT_SPARK_MASTER
-    return (SparkSession.builder.master(master).appName("logiq-sql")
+    builder = SparkSession.builder
+    master = master or os.environ.get(SPARK_MASTER_ENV)
+    if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
+        builder = builder.master(master or DEFAULT_SPARK_MASTER)
+    return (builder.appName("logiq-sql")
             .config("spark.ui.enabled", "false")
             .config("spark.ui.showConsoleProgress", "false")
             .config("spark.sql.shuffle.partitions", "4")
@@ -253,6 +257,9 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
     header += [f"-- :{name} = {_literal(value)}" for name, value in args.items()]
     header += ["-- reads the canonical tables (docs/tables.md) and run_drives (drive_id of the drives to match) as "
                "tables or temp views" + ("; encroachments (shapely) as stored by a match" if s.junctions else "")]
+    if s.junctions:
+        header += ["-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached for "
+                   "batch Resolution): run it step by step, as match --engine spark does (docs/engines.md)"]
     return "\n".join(header) + "\n" + text + "\n"
 
 
