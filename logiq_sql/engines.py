@@ -132,7 +132,7 @@ def spark_session(master: str | None = None):
     master = master or os.environ.get(SPARK_MASTER_ENV)
     if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
         builder = builder.master(master or DEFAULT_SPARK_MASTER)
-    return (builder.appName("logiq-sql")
+    session = (builder.appName("logiq-sql")
             .config("spark.ui.enabled", "false")
             .config("spark.ui.showConsoleProgress", "false")
             .config("spark.sql.shuffle.partitions", "4")
@@ -140,6 +140,8 @@ def spark_session(master: str | None = None):
             # drive ids such as '101' stay strings when read back from partition folder names
             .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
             .getOrCreate())
+    session.sparkContext.setLogLevel("ERROR")  # Spark's own warnings would drown logiq-sql's progress lines
+    return session
 
 
 def export_parquet(con: duckdb.DuckDBPyConnection, folder: str | Path) -> Path:

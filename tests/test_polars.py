@@ -142,3 +142,13 @@ def test_render_has_no_polars_form():
 
     with pytest.raises(EngineError, match="Polars SQL has no parameters"):
         render("follower_vehicle", engine="polars")
+
+
+def test_cli_engine_polars_is_a_clear_error(drives, capsys):
+    from logiq_sql.cli import main
+
+    real, _ = drives
+    assert main(["match", "--db", str(real), "--engine", "polars", "--scenario", "follower_vehicle", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--engine polars: queries/relations/ego_lanes.sql cannot run on Polars SQL" in err
+    assert "--engine duckdb or spark" in err
