@@ -31,6 +31,8 @@ MATCHES = Table(
         _c("start_s", F, "t_s of the first frame.", False),
         _c("end_s", F, "t_s of the last frame.", False),
         _c("duration_s", F, "end_s - start_s.", False),
+        _c("run_id", S, "The run that produced the match: join match_runs using (run_id, scenario) for its "
+                        "parameter values."),
     ),
 )
 
@@ -103,14 +105,18 @@ MATCH_RUNS = Table(
         _c("params_json", S, "Every SQL parameter and its bound value, canonical units.", False),
         _c("overrides", S, "The --set values as written.", False),
         _c("ego_mode", S, "auto, recorded, all, every:N or an actor id.", False),
-        _c("drives", I, "Drives in the run.", False),
-        _c("matches", I, "Matches found.", False),
+        _c("drives", I, "Drives matched in the run (drives already up to date are not rerun, see drive_scenarios).",
+           False),
+        _c("matches", I, "Matches found on those drives.", False),
+        _c("relation_range_m", F, "The --relation-range of the run, metres."),
     ),
 )
 
 DRIVE_SCENARIOS = Table(
     "drive_scenarios",
-    "One row per (drive, scenario) of the latest run of that scenario over that drive.",
+    "One row per (drive, scenario) of the latest run of that scenario over that drive. A later run skips the pair "
+    "while its run had the same params_hash, ego_mode and relation_range_m (match --force reruns it); re-ingesting "
+    "the drive removes its rows.",
     (
         _c("drive_id", S, "Drive.", False),
         _c("scenario", S, "Scenario.", False),
@@ -118,6 +124,7 @@ DRIVE_SCENARIOS = Table(
         _c("egos", I, "SUTs considered in the drive.", False),
         _c("matches", I, "Matches found.", False),
         _c("status", S, "matched, no_match, no_ego (no actor could be the SUT) or rejected.", False),
+        _c("run_id", S, "The run that matched the pair: join match_runs using (run_id, scenario)."),
     ),
 )
 
