@@ -113,10 +113,17 @@ def cmd_query(args: argparse.Namespace) -> int:
             frame = con.sql(args.sql).pl()
         except duckdb.Error as exc:  # the analyst's SQL: a bad-input error, not a crash
             raise LogiqError(f"{exc}\n\nHint: the tables and their columns are in docs/tables.md.") from None
-    with pl.Config(tbl_rows=args.limit, tbl_cols=-1, fmt_str_lengths=40, tbl_width_chars=200,
+    with pl.Config(tbl_rows=args.limit, tbl_cols=-1, fmt_str_lengths=60, tbl_width_chars=200,
                    tbl_hide_dataframe_shape=True, float_precision=2):
         print(frame)
     return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from logiq_sql.report import report
+
+    print(f"report written to {report(args.db, args.out).resolve()}")
+    return EXIT_OK
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -206,6 +213,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", required=True, metavar="FILE")
     p.add_argument("--limit", type=int, default=40, help="rows to print (default 40)")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser("report", help="write one self-contained HTML report of a matched file", epilog=EPILOG,
+                       description="Coverage histograms, KPI distributions, the match table with filters, every "
+                                   "drive's status and the runs with their parameters, in one HTML file with inline "
+                                   "SVG charts (no network needed to view it).")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
+    p.add_argument("--out", required=True, metavar="FILE", help="HTML file to write, e.g. report.html")
+    p.set_defaults(func=cmd_report)
 
     add_label_parser(sub)
     add_evaluate_parser(sub)
