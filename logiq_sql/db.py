@@ -200,18 +200,24 @@ def memory_limit() -> str:
     return value
 
 
+def _no_progress_bar(con: duckdb.DuckDBPyConnection) -> None:
+    """DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself. In Jupyter
+    without ipywidgets the bar is already off and turning it off raises, so only switch it off when it is on."""
+    if con.execute("select current_setting('enable_progress_bar')").fetchone()[0]:
+        con.execute("set enable_progress_bar = false")
+
+
 def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnection:
     """Open (and on first use create) a logiq_sql DuckDB file with every table and view."""
     path = Path(path)
     config = {"memory_limit": memory_limit()}
     if read_only:
         con = duckdb.connect(str(path), read_only=True, config=config)
-        con.execute("set enable_progress_bar = false")
+        _no_progress_bar(con)
         return con
     path.parent.mkdir(parents=True, exist_ok=True)
     con = duckdb.connect(str(path), config=config)
-    # DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself
-    con.execute("set enable_progress_bar = false")
+    _no_progress_bar(con)
     for table in TABLES:
         create_table(con, table)
     con.execute(DRIVES_VIEW)
