@@ -203,7 +203,7 @@ def memory_limit() -> str:
 def _no_progress_bar(con: duckdb.DuckDBPyConnection) -> None:
     """DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself. In Jupyter
     without ipywidgets the bar is already off and turning it off raises, so only switch it off when it is on."""
-    if con.execute("select current_setting('enable_progress_bar')").fetchone()[0]:
+    if con.execute("select current_setting('enable_progress_bar')").fetchall()[0][0]:
         con.execute("set enable_progress_bar = false")
 
 
