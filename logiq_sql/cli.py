@@ -100,11 +100,10 @@ def cmd_explain(args: argparse.Namespace) -> int:
 
 
 def cmd_query(args: argparse.Namespace) -> int:
+    import duckdb
     import polars as pl
 
     from logiq_sql.db import connect
-
-    import duckdb
 
     if not Path(args.db).is_file():
         raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")

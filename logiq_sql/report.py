@@ -66,7 +66,7 @@ def _svg(fig) -> str:
     buf = io.StringIO()
     with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "logiq-sql"}):
         fig.savefig(buf, format="svg", metadata={"Date": None})
-    text = re.sub(r"<metadata>.*?</metadata>", "", buf.getvalue(), flags=re.S)  # RDF boilerplate
+    text = re.sub(r"<metadata>.*?</metadata>", "", buf.getvalue(), flags=re.DOTALL)  # RDF boilerplate
     return '<div class="chart">' + text[text.index("<svg"):] + "</div>"
 
 
@@ -112,8 +112,8 @@ def report(db: str | Path, out: str | Path) -> Path:
              *[(f"drives {s}", n) for s, n in status.rows()]]
     parts = [
         f"<h1>logiq_sql report: {html.escape(Path(db).name)}</h1>",
-        f"<p>Written {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} from <code>{html.escape(str(db))}</code>."
-        " Tables and columns: docs/tables.md.</p>",
+        (f"<p>Written {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} from "
+         f"<code>{html.escape(str(db))}</code>. Tables and columns: docs/tables.md.</p>"),
         '<div class="cards">' + "".join(f'<div class="card"><b>{n}</b>{html.escape(k)}</div>' for k, n in cards)
         + "</div>",
         "<h2>Coverage</h2><p>Hits per bucket over every match in the file; empty buckets are shaded red.</p>",
@@ -129,9 +129,9 @@ def report(db: str | Path, out: str | Path) -> Path:
     options = "".join(f'<option value="{html.escape(s)}">{html.escape(s)}</option>' for s in scenarios)
     parts += [
         "<h2>Matches</h2>",
-        '<div class="filters"><label>scenario <select id="scenario-filter"><option value="">all</option>'
-        f'{options}</select></label><label>contains <input id="text-filter" type="search" '
-        'placeholder="drive, actor, ..."></label><span id="match-count"></span></div>',
+        ('<div class="filters"><label>scenario <select id="scenario-filter"><option value="">all</option>'
+         f'{options}</select></label><label>contains <input id="text-filter" type="search" '
+         'placeholder="drive, actor, ..."></label><span id="match-count"></span></div>'),
         '<div class="scroll">' + _table(matches, "matches", row_attr="scenario") + "</div>",
         "<h2>Drives</h2><p>Every drive that went in, with its status over all scenarios run.</p>",
         '<div class="scroll">' + _table(drives, "drives") + "</div>",

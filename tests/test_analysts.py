@@ -45,8 +45,8 @@ def example_queries() -> list[tuple[str, str]]:
     """(heading, SQL) of every ```sql block of docs/queries.md."""
     text = (ROOT / "docs/queries.md").read_text()
     out = []
-    for m in re.finditer(r"^```sql\n(.*?)^```", text, flags=re.S | re.M):
-        heading = re.findall(r"^## (.+)$", text[:m.start()], flags=re.M)[-1]
+    for m in re.finditer(r"^```sql\n(.*?)^```", text, flags=re.DOTALL | re.MULTILINE):
+        heading = re.findall(r"^## (.+)$", text[:m.start()], flags=re.MULTILINE)[-1]
         out.append((heading, m.group(1)))
     return out
 
@@ -75,8 +75,8 @@ def test_fast_cut_outs_are_the_ones_measured(matched_db):
 
 
 def test_query_prints_a_table_and_cannot_write(matched_db, capsys):
-    assert main(["query", "--db", str(matched_db), "select scenario, count(*) as n from matches group by 1 "
-                 "order by 1"]) == 0
+    assert main(["query", "--db", str(matched_db),
+                 "select scenario, count(*) as n from matches group by 1 order by 1"]) == 0
     out = capsys.readouterr().out
     assert "unprotected_left_turn_with_yield_and_traffic_light" in out and "│" in out
     assert main(["query", "--db", str(matched_db), "delete from matches"]) == 2
