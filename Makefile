@@ -57,8 +57,9 @@ demo: venv
 test: venv
 	$(BIN)/python -m pytest -q
 
+TIER ?= S
 bench: venv
-	$(BIN)/python -m benchmarks.spine $(BENCH_ARGS)
+	$(BIN)/python -m benchmarks.tiers --tier $(TIER) $(BENCH_ARGS)
 
 docs: venv
 	$(BIN)/python -c "from logiq_sql.db import docs_markdown; print(docs_markdown())" > docs/tables.md

@@ -29,6 +29,7 @@ from logiq_sql.encroachment import encroachments
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import materialise, query_text, render_steps
+from logiq_sql.timing import stage
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -234,15 +235,17 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
 def prepare_relations(con: duckdb.DuckDBPyConnection, group: list[Scenario], values: dict[str, object]) -> None:
     """The steps every scenario of ``group`` (one lane tolerance) shares: egos, relations and, when one of them
     needs it, the junction geometry and the encroachment areas."""
-    materialise(con, "egos", "relations/egos.sql", values)
-    for table, rel in RELATION_STEPS:
-        materialise(con, table, rel, values)
-    if any(s.junctions for s in group):
-        for table, rel in JUNCTION_STEPS:
+    with stage("relations"):
+        materialise(con, "egos", "relations/egos.sql", values)
+        for table, rel in RELATION_STEPS:
             materialise(con, table, rel, values)
-        con.register("_encroachments", encroachments(con))
-        con.execute("create or replace temp table encroachments as select * from _encroachments")
-        con.unregister("_encroachments")
+    if any(s.junctions for s in group):
+        with stage("junctions"):
+            for table, rel in JUNCTION_STEPS:
+                materialise(con, table, rel, values)
+            con.register("_encroachments", encroachments(con))
+            con.execute("create or replace temp table encroachments as select * from _encroachments")
+            con.unregister("_encroachments")
 
 
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
@@ -328,14 +331,16 @@ def _drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl
 
 
 def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str, object]):
-    for table, rel in phase_steps(s):
-        materialise(con, table, rel, values)
-    materialise(con, "scenario_matches", "match/identify.sql", values)
-    matches = con.sql("select * from scenario_matches").pl()
+    with stage(f"scenario {s.name}"):
+        for table, rel in phase_steps(s):
+            materialise(con, table, rel, values)
+        materialise(con, "scenario_matches", "match/identify.sql", values)
+        matches = con.sql("select * from scenario_matches").pl()
     metrics = matches.select("match_id")
-    for rel in s.kpi_queries:
-        materialise(con, "_kpi", rel, values)
-        metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
+    with stage("kpis"):
+        for rel in s.kpi_queries:
+            materialise(con, "_kpi", rel, values)
+            metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
                           *[pl.col(c) for c in _metric_columns(s)])
     phases = pl.concat([
@@ -383,8 +388,9 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
                 "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
                 "drives": run_drives.height, "matches": matches.height, "relation_range_m": range_m,
             }], schema=db.MATCH_RUNS.polars_schema))
-        con.execute("delete from coverage")
-        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+        with stage("coverage"):
+            con.execute("delete from coverage")
+            con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
