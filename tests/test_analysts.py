@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 from pathlib import Path
 
 import duckdb
@@ -137,3 +138,10 @@ def test_report_renders_in_headless_chromium(matched_db, tmp_path):
     assert errors == []
     assert requests == [html.as_uri()]
     assert screenshot.stat().st_size > 20_000
+
+
+def test_a_missing_chromium_fails_in_ci_rather_than_skipping(monkeypatch):
+    monkeypatch.setattr(sys.modules[__name__], "CHROMIUM", "/nonexistent/chromium")
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="apt-get install -y chromium"):
+        _chromium()
