@@ -189,6 +189,49 @@ def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Colu
         con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")
 
 
+# columns that mean the same in every derived table
+KEY_DOCS = {
+    "drive_id": "Drive.", "ego_id": "actor_id of the ego (SUT).", "actor_id": "Actor (tracks.actor_id).",
+    "frame": "Sample index.", "t_s": "Time since the start of the drive, seconds.",
+    "map_id": "Map.", "junction_id": "Junction.",
+}
+
+
+def header_docs(sql: str) -> tuple[str | None, dict[str, str]]:
+    """The grain and the column descriptions of a query file's header comment: ``-- grain: ...`` and
+    ``--   name[, name]   description`` lines, a description continuing on lines indented as deep."""
+    grain, docs, current, indent = None, {}, [], 0
+    for line in sql.splitlines():
+        if not line.startswith("--"):
+            break
+        body = line[2:]
+        if body.startswith(" grain:"):
+            grain = body.split(":", 1)[1].strip()
+            continue
+        m = re.match(r"(\s{2,})([a-z_][a-z0-9_]*(?:,\s*[a-z_][a-z0-9_]*)*)(\s{2,})(\S.*)", body)
+        if m:
+            current = [name.strip() for name in m.group(2).split(",")]
+            indent = len(m.group(1)) + len(m.group(2)) + len(m.group(3))
+            docs.update({name: m.group(4).strip() for name in current})
+        elif current and body.strip() and len(body) - len(body.lstrip()) >= indent:
+            docs.update({name: docs[name] + " " + body.strip() for name in current})
+        else:
+            current = []
+    return grain, docs
+
+
+def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, doc: str,
+                    column_docs: dict[str, str], fallback: str) -> None:
+    """Comment a table the matcher derives (relations, ...): its columns from ``column_docs``, the shared keys,
+    else ``fallback`` (where the definition is)."""
+    con.execute(f"comment on table {qualified} is {_quote(doc)}")
+    columns = con.execute("select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' "
+                          "and database_name = current_database()", {"t": name}).fetchall()
+    for (col,) in columns:
+        text = column_docs.get(col) or KEY_DOCS.get(col) or fallback
+        con.execute(f"comment on column {qualified}.{col} is {_quote(text)}")
+
+
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
 DEFAULT_MEMORY_LIMIT = "4GB"  # DuckDB spills to <file>.tmp beyond this instead of growing
 

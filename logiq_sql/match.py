@@ -48,8 +48,12 @@ JUNCTION_STEPS = (
     ("junction_frames", "junctions/junction_frames.sql"),
     ("crossing_pairs", "junctions/crossing_pairs.sql"),
 )
-# kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive
-PERSISTED = ("relations", "ego_lanes", "passages", "encroachments")
+# kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive, with the
+# file whose header documents their columns
+PERSISTED = {"relations": "queries/relations/relations.sql", "ego_lanes": "queries/relations/ego_lanes.sql",
+             "passages": "queries/junctions/passages.sql", "encroachments": "logiq_sql/encroachment.py"}
+ENCROACHMENTS_GRAIN = ("one row per (drive_id, ego_id, actor_id) pair of junction passages whose swept paths share "
+                       "an area")
 
 
 @dataclass
@@ -222,6 +226,8 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
     con.execute("create table if not exists kpis (match_id varchar not null, scenario varchar not null)")
     con.execute("comment on table kpis is 'One row per match: every KPI and sampled coverage value of its scenario, in the spec''s "
                 "units (column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
+    con.execute("comment on column kpis.match_id is 'Match (matches.match_id).'")
+    con.execute("comment on column kpis.scenario is 'Scenario.'")
     have = {r[0] for r in con.execute(
         "select column_name from duckdb_columns() where table_name = 'kpis'").fetchall()}
     for s in scenarios:
@@ -365,6 +371,7 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
             con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
+            _describe_persisted(con, stored, table)
         for matches, phases, kpis, samples, buckets, s, egos in results:
             # rows that hang off the matches first, then the matches themselves
             for table in ("match_phases", "kpis", "coverage_samples"):
@@ -395,6 +402,18 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
     except BaseException:
         con.execute("rollback")
         raise
+
+
+def _describe_persisted(con: duckdb.DuckDBPyConnection, stored: str, table: str) -> None:
+    """Table and column comments for a kept table, from the header of the file that defines it."""
+    source = PERSISTED[table]
+    if source.endswith(".sql"):
+        grain, docs = db.header_docs(query_text(source.removeprefix("queries/")))
+    else:
+        grain, docs = ENCROACHMENTS_GRAIN, {}
+    db.comment_derived(con, f"{stored}.{table}", table,
+                       f"Kept from the last match run of each drive: {grain} ({source}, docs/semantics.md).",
+                       docs, f"See the header of {source} and docs/semantics.md.")
 
 
 def _drive_status(con, run_drives: pl.DataFrame, matches: pl.DataFrame, egos: pl.DataFrame, s: Scenario):

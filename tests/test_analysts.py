@@ -145,3 +145,16 @@ def test_a_missing_chromium_fails_in_ci_rather_than_skipping(monkeypatch):
     monkeypatch.setenv("CI", "true")
     with pytest.raises(pytest.fail.Exception, match="apt-get install -y chromium"):
         _chromium()
+
+
+def test_a_matched_file_describes_every_table_and_column(matched_db):
+    with duckdb.connect(str(matched_db), read_only=True) as con:
+        bare_columns = con.execute("select table_name, column_name from duckdb_columns() "
+                                   "where comment is null and not internal").fetchall()
+        bare_tables = con.execute("select table_name from duckdb_tables() where comment is null union all "
+                                  "select view_name from duckdb_views() where comment is null and not internal"
+                                  ).fetchall()
+        ttc = con.execute("select comment from duckdb_columns() where table_name = 'relations' "
+                          "and column_name = 'ttc_s'").fetchone()[0]
+    assert bare_columns == [] and bare_tables == []
+    assert ttc.startswith("lon_gap / closing speed")  # from the header of queries/relations/relations.sql
