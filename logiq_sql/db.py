@@ -307,7 +307,8 @@ def docs_markdown() -> str:
                 out.append(f"| `{column}` | {unit} | {doc} |")
     out += ["", "## `relations` and `ego_lanes`", "",
             "Kept from the last match run of each drive, for analysts: see docs/semantics.md for every column "
-            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`).", "",
+            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`). In the file, their columns carry "
+            "the descriptions of those files' headers as comments (as do `passages` and `encroachments`).", "",
             "## `passages` and `encroachments`", "",
             "Kept from the last run of a junction scenario on each drive: every stay of an ego or related actor in a "
             "junction with its entry and exit, legs and turn (`queries/junctions/passages.sql`), and the encroachment "
