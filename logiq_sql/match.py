@@ -293,6 +293,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             todo = pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String})
             con.register("run_drives", todo)
             say(f"[{step}/{len(groups)}] {len(ids)} drive(s): {', '.join(s.name for s in group)}")
+            for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
+                con.execute(f"drop table if exists temp.main.{table}")
             prepare_relations(con, group, run_values(group[0], ego_values, range_m))
             say(f"  relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")

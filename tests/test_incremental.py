@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import duckdb
@@ -114,3 +115,26 @@ def test_reingesting_a_drive_makes_the_next_run_match_it_again(first_run):
     ingest("commonroad", [FIRST[0]], first_run)
     result = match(first_run, scenarios=SCENARIOS)
     assert result.up_to_date == {"follower_vehicle": 1, "sut_cut_out": 1}
+
+
+def test_scenarios_with_different_drives_to_match_keep_every_kept_table_unique(tmp_path):
+    """Two groups in one run (left turn on two junction drives, follower only on the new one): each group keeps
+    only the junction tables it computed."""
+    runs = tmp_path / "runs"
+    for name in ("j1", "j2"):
+        shutil.copytree(Path(__file__).parent / "data/sumo/junction_s1", runs / name)
+    db = tmp_path / "x.duckdb"
+    ingest("sumo", [runs / "j1"], db)
+    match(db, scenarios=["follower_vehicle"], ego="every:5")
+    ingest("sumo", [runs / "j2"], db)
+    result = match(db, scenarios=["unprotected_left_turn_with_yield_and_traffic_light", "follower_vehicle"],
+                   ego="every:5")
+    assert result.up_to_date == {"unprotected_left_turn_with_yield_and_traffic_light": 0, "follower_vehicle": 1}
+    with duckdb.connect(str(db), read_only=True) as con:
+        passages = con.sql("select drive_id, actor_id, passage from passages").pl()
+        encroachments = con.sql("select drive_id, ego_id, ego_passage, actor_id, actor_passage from encroachments").pl()
+        relations = con.sql("select drive_id, ego_id, actor_id, frame from relations").pl()
+    assert passages.height > 0 and set(passages["drive_id"]) == {"j1", "j2"}
+    assert not passages.is_duplicated().any()
+    assert encroachments.height > 0 and not encroachments.is_duplicated().any()
+    assert not relations.is_duplicated().any()
