@@ -192,6 +192,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
         for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+        # new rows for a drive: its earlier match status no longer holds, so the next match reruns it
+        con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         for drive in maps.values():
@@ -228,7 +230,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
     """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays."""
-    for table in schema.DRIVE_TABLE_NAMES:
+    for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
         con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
     rows = drive.rows_read or drive.tracks.height
     db.insert(con, "drive_inputs", pl.DataFrame([{
