@@ -6,7 +6,7 @@ The matcher (``logiq_sql/match.py``) orchestrates the steps; an engine only exec
     frame(sql)                             a query (DuckDB dialect) or a table name -> Polars frame
     register(table, frame)                 make a Polars frame a table the next steps can read
     persist(tables)                        copy the named step tables into the DuckDB file's temp schema, where
-                                           the matcher stores them from (a no-op for DuckDB)
+                                           the matcher stores them from, and forget them (a no-op for DuckDB)
 
 Every engine reads the same ``queries/`` text, written in DuckDB dialect. Parameters stay bound: DuckDB binds
 ``$name`` natively, Spark gets the sqlglot transpile with ``:name`` markers and ``args=``, and Polars SQL (which
@@ -215,6 +215,9 @@ class SparkEngine(Engine):
         for table in tables:
             if table in self.views:
                 _copy_into_duckdb(self.con, table, self.frame(table))
+                # the next group of the run keeps only what it computes itself
+                self.views.pop(table).unpersist()
+                self.spark.catalog.dropTempView(table)
 
     def close(self) -> None:
         for df in self.views.values():
@@ -324,6 +327,7 @@ class PolarsEngine(Engine):
         for table in tables:
             if table in registered:
                 _copy_into_duckdb(self.con, table, self.frame(table))
+                self.ctx.unregister(table)
 
 
 # The query files Polars SQL (polars 2.1) cannot run, with the error it gives. Every other query file runs there
