@@ -35,7 +35,7 @@ from logiq_sql.sql import _literal, _used, bind, materialise, query_text
 ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
 DEFAULT_SPARK_MASTER = "local[2]"
-# the canonical tables a match reads, with the key Spark's Parquet copies are partitioned by (None: one file)
+# the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
 
@@ -44,16 +44,16 @@ class EngineError(LogiqError):
     """An engine is not installed, or cannot run a query."""
 
 
-def _duck(con: duckdb.DuckDBPyConnection) -> DuckEngine:
-    return DuckEngine(con)
-
-
-def as_engine(con_or_engine) -> Engine:
+def as_engine(con_or_engine: duckdb.DuckDBPyConnection | Engine) -> Engine:
     """Callers that hold a DuckDB connection (explain, tests) keep passing it; the matcher passes an engine."""
-    return _duck(con_or_engine) if isinstance(con_or_engine, duckdb.DuckDBPyConnection) else con_or_engine
+    if isinstance(con_or_engine, duckdb.DuckDBPyConnection):
+        return DuckEngine(con_or_engine)
+    return con_or_engine
 
 
 class Engine:
+    """What the matcher needs from an engine (module docstring); DuckEngine is the reference."""
+
     name = "engine"
 
     def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
@@ -66,7 +66,7 @@ class Engine:
         raise NotImplementedError
 
     def persist(self, tables: tuple[str, ...]) -> None:
-        """Copy the step tables among ``tables`` that this run made into DuckDB temp tables."""
+        """Copy the step tables among ``tables`` that this group made into DuckDB temp tables, then forget them."""
 
     def close(self) -> None:
         """Release what the engine holds (Spark views, exported Parquet)."""
@@ -133,13 +133,13 @@ def spark_session(master: str | None = None):
     if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
         builder = builder.master(master or DEFAULT_SPARK_MASTER)
     session = (builder.appName("logiq-sql")
-            .config("spark.ui.enabled", "false")
-            .config("spark.ui.showConsoleProgress", "false")
-            .config("spark.sql.shuffle.partitions", "4")
-            .config("spark.sql.session.timeZone", "UTC")
-            # drive ids such as '101' stay strings when read back from partition folder names
-            .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
-            .getOrCreate())
+               .config("spark.ui.enabled", "false")
+               .config("spark.ui.showConsoleProgress", "false")
+               .config("spark.sql.shuffle.partitions", "4")
+               .config("spark.sql.session.timeZone", "UTC")
+               # drive ids such as '101' stay strings when read back from partition folder names
+               .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
+               .getOrCreate())
     session.sparkContext.setLogLevel("ERROR")  # Spark's own warnings would drown logiq-sql's progress lines
     return session
 
@@ -263,8 +263,8 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
     header += ["-- reads the canonical tables (docs/tables.md) and run_drives (drive_id of the drives to match) as "
                "tables or temp views" + ("; encroachments (shapely) as stored by a match" if s.junctions else "")]
     if s.junctions:
-        header += ["-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached for "
-                   "batch Resolution): run it step by step, as match --engine spark does (docs/engines.md)"]
+        header.append("-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached "
+                      "for batch Resolution): run it step by step, as match --engine spark does (docs/engines.md)")
     return "\n".join(header) + "\n" + text + "\n"
 
 
