@@ -312,13 +312,20 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
 
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
-    """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays."""
-    for table in schema.DRIVE_TABLE_NAMES:
-        con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+    """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays.
+    One transaction: a run killed here leaves the drive as it was before, never without its drive_inputs row."""
     rows = drive.rows_read or drive.tracks.height
-    db.insert(con, "drive_inputs", pl.DataFrame([{
-        "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
-        "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
-        "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
-        "reject_reason": reason, "attribution": drive.attribution,
-    }], schema=schema.DRIVE_INPUTS.polars_schema))
+    con.execute("begin transaction")
+    try:
+        for table in schema.DRIVE_TABLE_NAMES:
+            con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+        db.insert(con, "drive_inputs", pl.DataFrame([{
+            "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
+            "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
+            "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
+            "reject_reason": reason, "attribution": drive.attribution,
+        }], schema=schema.DRIVE_INPUTS.polars_schema))
+        con.execute("commit")
+    except BaseException:
+        con.execute("rollback")
+        raise
