@@ -214,9 +214,10 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
 
     for pname, spec in raw.get("params", {}).items():
         where = f"{path} [params.{pname}]"
-        for key in sorted(set(spec) - _PARAM_KEYS):  # a misspelt key would silently leave the default unset
-            raise ScenarioError(f"{where}: unknown key '{key}'.{did_you_mean(key, sorted(_PARAM_KEYS))}\n\n"
-                                f"Hint: a parameter has {', '.join(sorted(_PARAM_KEYS))}.")
+        unknown = sorted(set(spec) - _PARAM_KEYS)  # a misspelt key would silently leave the default unset
+        if unknown:
+            raise ScenarioError(f"{where}: unknown key '{unknown[0]}'.{did_you_mean(unknown[0], sorted(_PARAM_KEYS))}"
+                                f"\n\nHint: a parameter has {', '.join(sorted(_PARAM_KEYS))}.")
         type_ = spec.get("type")
         if type_ not in PARAM_TYPES:
             raise ScenarioError(f"{where}: type {type_!r} is not one of {', '.join(PARAM_TYPES)}.")

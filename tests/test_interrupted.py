@@ -99,8 +99,8 @@ def snapshot(db: Path) -> dict[str, pl.DataFrame]:
 
 
 def assert_same(a: dict[str, pl.DataFrame], b: dict[str, pl.DataFrame]) -> None:
-    for name in a:
-        assert a[name].equals(b[name]), name
+    for name, frame in a.items():
+        assert frame.equals(b[name]), name
 
 
 @pytest.fixture(scope="module")

@@ -110,8 +110,8 @@ def test_two_phases_join_islands_that_touch_and_trim_them_to_the_limits(n, min1,
     ego_frames = [i for i, s in enumerate(seen) if s]
 
     def phase(flags):
-        rows = [dict(drive_id="d", ego_id="e", actor_id="a", start_frame=a, end_frame=b, start_s=round(a * DT, 6),
-                     end_s=round(b * DT, 6)) for a, b in islands_of(flags)]
+        rows = [{"drive_id": "d", "ego_id": "e", "actor_id": "a", "start_frame": a, "end_frame": b,
+                 "start_s": round(a * DT, 6), "end_s": round(b * DT, 6)} for a, b in islands_of(flags)]
         return pl.DataFrame(rows, schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String,
                                           "start_frame": pl.Int64, "end_frame": pl.Int64, "start_s": pl.Float64,
                                           "end_s": pl.Float64})
@@ -147,8 +147,9 @@ def test_histogram_counts_every_sample_once_in_its_half_open_bucket(spec, data):
     nums = data.draw(st.lists(value, max_size=30))
     texts = data.draw(st.lists(st.sampled_from(["car", "bike", "boat", None]), max_size=10))
     samples = pl.DataFrame(
-        [dict(scenario="s", match_id=f"m{i}", item="x", value_num=v, value_text=None) for i, v in enumerate(nums)]
-        + [dict(scenario="s", match_id=f"k{i}", item="kind", value_num=None, value_text=v)
+        [{"scenario": "s", "match_id": f"m{i}", "item": "x", "value_num": v, "value_text": None}
+         for i, v in enumerate(nums)]
+        + [{"scenario": "s", "match_id": f"k{i}", "item": "kind", "value_num": None, "value_text": v}
            for i, v in enumerate(texts)],
         schema={"scenario": pl.String, "match_id": pl.String, "item": pl.String, "value_num": pl.Float64,
                 "value_text": pl.String})
