@@ -61,7 +61,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
             out += sorted(f for f in p.rglob("*") if f.is_file() and f.name.endswith(_SUFFIXES[fmt]))
         else:
             out.append(p)
-    return out
+    return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
@@ -78,12 +78,13 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     summary = IngestSummary()
     batch: list[DriveData] = []
     batch_rows = 0
+    seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
     try:
         for i, path in enumerate(files, 1):
             count = 0
             try:
                 for drive in reader(path):  # readers may stream: drives are written as batches fill up
-                    batch.append(drive)
+                    batch.append(_unique(drive, seen))
                     batch_rows += drive.tracks.height
                     count += 1
                     if batch_rows >= BATCH_ROWS:
@@ -91,7 +92,8 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
                         batch, batch_rows = [], 0
             except LogiqError as exc:
                 # the file could not be read: one rejected drive named after it
-                _reject(con, DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()), str(exc))
+                _reject(con, _unique(DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()),
+                                     seen), str(exc))
                 summary.rejected += 1
                 if progress:
                     progress(f"[{i}/{len(files)}] {path.name}: rejected: {exc}")
@@ -102,6 +104,21 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     finally:
         con.close()
     return summary
+
+
+def _unique(drive: DriveData, seen: dict[str, str]) -> DriveData:
+    """The drive, or, when another file of this run already gave its drive_id, a rejected drive under an id that
+    names its file: the first is kept, the second is accounted for, neither replaces the other silently.
+    (Ingesting the same file again, in this run or a later one, replaces the drive: ingest is idempotent.)"""
+    first = seen.setdefault(drive.drive_id, drive.source_path)
+    if first == drive.source_path:
+        return drive
+    clash = DriveData(f"{drive.drive_id} ({drive.source_path})", drive.source_format, drive.source_path,
+                      drive.dt_s, pl.DataFrame(), rows_read=drive.rows_read or drive.tracks.height,
+                      reject_reason=f"{drive.source_path}: drive_id '{drive.drive_id}' was already read from {first} "
+                                    "in this run. Fix: give every drive its own drive_id.")
+    seen[clash.drive_id] = drive.source_path
+    return clash
 
 
 def _count(summary: IngestSummary, written: list[tuple[DriveData, int]]) -> None:
@@ -255,7 +272,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     """
     accepted: list[tuple[DriveData, pl.DataFrame, int, str | None]] = []
     written: list[tuple[DriveData, int]] = []
-    for drive in drives:
+    # a drive read twice into one batch (a file named twice) is written once, as a later ingest would replace it
+    for drive in {d.drive_id: d for d in drives}.values():
         try:
             if drive.tracks.is_empty() and drive.reject_reason:
                 raise InputError(drive.reject_reason)

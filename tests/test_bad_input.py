@@ -577,3 +577,36 @@ def test_bad_drives_are_rejected_with_their_reason_and_the_others_match(tmp_path
         "all_nan": "rejected"}
     assert all(drives[d]["reject_reason"] for d in ("unknown_kind", "degrees", "all_nan"))
     assert sorted(matches["drive_id"].to_list()) == ["good_1", "good_2"]
+
+
+def test_two_files_giving_one_drive_id(tmp_path):
+    first = write(tmp_path / "first", scene())
+    second = write(tmp_path / "second", scene().with_columns(pl.col("x_m") + 5))
+    db = tmp_path / "x.duckdb"
+    summary = ingest("parquet", [first, second, first], db)  # the same folder twice is one drive
+    assert (summary.drives, summary.rejected, summary.rows) == (1, 1, 102)
+    drives = {r["drive_id"]: r for r in match(db, scenarios=["follower_vehicle"], ego="recorded").drives.iter_rows(
+        named=True)}
+    assert drives["d1"]["status"] == "matched" and drives["d1"]["source_path"] == str(first / "tracks.parquet")
+    clash = f"d1 ({second / 'tracks.parquet'})"
+    assert rejected(drives, clash) == (f"{second / 'tracks.parquet'}: drive_id 'd1' was already read from "
+                                       f"{first / 'tracks.parquet'} in this run. Fix: give every drive its own "
+                                       "drive_id.")
+    assert drives[clash]["rows_read"] == 102
+    con = duckdb.connect(str(db), read_only=True)
+    assert con.sql("select count(*) from tracks").fetchall() == [(102,)]
+    assert con.sql("select count(*) from drive_inputs").fetchall() == [(2,)]
+
+
+def test_a_drive_twice_in_one_batch_is_written_once(tmp_path):
+    from logiq_sql import db as logiq_db
+    from logiq_sql.ingestion import write_drives
+    from logiq_sql.readers.parquet import read_parquet
+
+    (drive,) = read_parquet(write(tmp_path / "in", scene()))
+    con = logiq_db.connect(tmp_path / "x.duckdb")
+    written = write_drives(con, [drive, drive])
+    assert [kept for _, kept in written] == [102]
+    assert con.sql("select count(*) from tracks").fetchall() == [(102,)]
+    assert con.sql("select count(*) from drive_inputs").fetchall() == [(1,)]
+    con.close()
