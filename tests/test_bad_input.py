@@ -610,3 +610,16 @@ def test_a_drive_twice_in_one_batch_is_written_once(tmp_path):
     assert con.sql("select count(*) from tracks").fetchall() == [(102,)]
     assert con.sql("select count(*) from drive_inputs").fetchall() == [(1,)]
     con.close()
+
+
+@pytest.mark.parametrize(("env", "value", "message"), [
+    ("LOGIQ_SQL_THREADS", "2; drop table tracks", "LOGIQ_SQL_THREADS='2; drop table tracks': write a whole number of "
+                                                  "threads >= 1, or unset it."),
+    ("LOGIQ_SQL_THREADS", "0", "LOGIQ_SQL_THREADS='0': write a whole number of threads >= 1, or unset it."),
+    ("LOGIQ_SQL_MEMORY_LIMIT", "4GB'; drop table tracks; --", "LOGIQ_SQL_MEMORY_LIMIT=\"4GB'; drop table tracks; --\": "
+                                                               "write a size such as 4GB or 512MiB."),
+])
+def test_environment_settings_are_checked_before_they_reach_duckdb(tmp_path, monkeypatch, capsys, env, value, message):
+    monkeypatch.setenv(env, value)
+    assert main(["ingest", "parquet", str(write(tmp_path / "in", scene())), "--db", str(tmp_path / "x.duckdb")]) == 2
+    assert capsys.readouterr().err == f"logiq-sql: error: {message}\n"
