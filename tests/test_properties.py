@@ -170,3 +170,39 @@ def test_histogram_counts_every_sample_once_in_its_half_open_bucket(spec, data):
         expected[key] = expected.get(key, 0) + 1
     assert got == expected
     assert sum(got.values()) == len(nums) + len(texts)  # no sample lost, none counted twice
+
+
+# --- a single phase with a maximum duration ------------------------------------------------------------------------
+
+CYCLIST_FRAME = st.one_of(st.none(), st.tuples(
+    st.sampled_from(["cyclist", "person"]),
+    st.sampled_from([0.0, 0.5, 4.999, 5.0, 5.001, 9.0]),  # box distance, on and around the 0-5 m limits
+    st.sampled_from([0.0, 1.3, 1.3889, 1.4, 8.0]),  # ego speed, around 5 kph = 1.3889 m/s
+))
+
+
+@PROFILE
+@given(frames=st.lists(CYCLIST_FRAME, max_size=60), dt=st.sampled_from([0.1, 0.05, 0.04]),
+       max_s=st.sampled_from([0.0, 0.1, 0.3, 1.0, 2.55]))
+def test_cyclist_phase_cuts_episodes_into_pieces_of_at_most_the_maximum(frames, dt, max_s):
+    present = [(f, x) for f, x in enumerate(frames) if x is not None]
+    relations = pl.DataFrame(
+        [{"drive_id": "d", "ego_id": "e", "actor_id": "c", "frame": f, "t_s": f * dt, "actor_kind": kind,
+          "box_distance_m": dist} for f, (kind, dist, _) in present],
+        schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
+                "t_s": pl.Float64, "actor_kind": pl.String, "box_distance_m": pl.Float64})
+    tracks = pl.DataFrame([{"drive_id": "d", "actor_id": "e", "frame": f, "speed_mps": v} for f, (_, _, v) in present],
+                          schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
+                                  "speed_mps": pl.Float64})
+    drives = pl.DataFrame({"drive_id": ["d"], "dt_s": [dt]})
+    got = run("phases/cyclist_close_to_moving_sut.sql",
+              {"relations": relations, "tracks": tracks, "drive_inputs": drives},
+              {"sut_minimal_speed_mps": 5 / 3.6, "min_distance_from_cyclist_m": 0.0,
+               "max_distance_from_cyclist_m": 5.0, "max_phase_duration_s": max_s})
+    got = sorted(got.select("start_frame", "end_frame").iter_rows())
+
+    holds = [f for f, (kind, dist, v) in present if kind == "cyclist" and 0.0 <= dist <= 5.0 and v >= 5 / 3.6]
+    span = math.floor(max_s / dt + 1e-9) + 1  # frames a piece may span
+    expected = sorted((a, min(a + span - 1, b)) for start, b in runs(holds) for a in range(start, b + 1, span))
+    assert got == expected
+    assert all((b - a) * dt <= max_s + 1e-9 for a, b in got)  # no piece lasts longer than the maximum
