@@ -337,6 +337,7 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
     try:
         for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+        _drop_outputs(con, drive.drive_id)
         db.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
@@ -347,3 +348,20 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
     except BaseException:
         con.execute("rollback")
         raise
+
+
+def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_id: str) -> None:
+    """A drive that is now rejected keeps no matches from an earlier run of its old data (drives would report
+    them); the coverage histograms are recounted without them."""
+    if not con.execute("select count(*) from matches where drive_id = $d", {"d": drive_id}).fetchall()[0][0]:
+        return
+    have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+    for table in ("match_phases", "kpis", "coverage_samples"):
+        if table in have:
+            con.execute(f"delete from {table} where match_id in (select match_id from matches where drive_id = $d)",
+                        {"d": drive_id})
+    for table in ("matches", "drive_scenarios", "relations", "ego_lanes", "passages", "encroachments"):
+        if table in have:
+            con.execute(f"delete from {table} where drive_id = $d", {"d": drive_id})
+    con.execute("delete from coverage")
+    con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")

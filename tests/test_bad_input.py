@@ -623,3 +623,18 @@ def test_environment_settings_are_checked_before_they_reach_duckdb(tmp_path, mon
     monkeypatch.setenv(env, value)
     assert main(["ingest", "parquet", str(write(tmp_path / "in", scene())), "--db", str(tmp_path / "x.duckdb")]) == 2
     assert capsys.readouterr().err == f"logiq-sql: error: {message}\n"
+
+
+def test_a_drive_rejected_on_reingest_keeps_no_old_matches(tmp_path):
+    db = tmp_path / "x.duckdb"
+    ingest("parquet", [write(tmp_path / "good", pl.concat([scene("d1"), scene("d2")]))], db)
+    assert match(db, scenarios=["follower_vehicle"], ego="recorded").matches.height == 2
+    ingest("parquet", [write(tmp_path / "bad", scene("d1").with_columns(kind=pl.lit("car")))], db)
+    con = duckdb.connect(str(db), read_only=True)
+    drives = {r[0]: r[1:] for r in con.sql("select drive_id, status, matches from drives").fetchall()}
+    assert drives == {"d1": ("rejected", 0), "d2": ("matched", 1)}
+    assert con.sql("select drive_id from matches").fetchall() == [("d2",)]
+    assert con.sql("select count(*) from kpis").fetchall() == [(1,)]
+    assert con.sql("select count(distinct match_id) from coverage_samples").fetchall() == [(1,)]
+    hits = con.sql("select item, sum(hits) from coverage where scenario = 'follower_vehicle' group by item").fetchall()
+    assert hits and all(n == 1 for _, n in hits)  # recounted: the rejected drive's match is gone from coverage
