@@ -50,14 +50,16 @@ demo: venv
 	  k.traversal_relative_direction as traversal, k.pet_between_sut_and_npc_s as pet_s \
 	  from matches m join match_phases p using (match_id) join kpis k using (match_id) group by all \
 	  order by m.start_s limit 6"
-	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/"
+	$(BIN)/logiq-sql report --db $(DEMO_DB) --out demo/report.html
+	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/; report in demo/report.html"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, cast(sum(matches) as bigint) as matches from drives group by 1"
 
 test: venv
 	$(BIN)/python -m pytest -q
 
+TIER ?= S
 bench: venv
-	$(BIN)/python -m benchmarks.spine $(BENCH_ARGS)
+	$(BIN)/python -m benchmarks.tiers --tier $(TIER) $(BENCH_ARGS)
 
 docs: venv
 	$(BIN)/python -c "from logiq_sql.db import docs_markdown; print(docs_markdown())" > docs/tables.md

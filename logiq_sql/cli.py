@@ -11,7 +11,13 @@ from logiq_sql.evaluate import add_evaluate_parser
 from logiq_sql.labels import add_label_parser
 from logiq_sql.match import DEFAULT_RELATION_RANGE
 
-EPILOG = "Docs: README.md and docs/ in the repository. Exit codes: 0 ok, 1 unexpected failure, 2 bad input."
+# exit codes a scheduler can act on
+EXIT_OK = 0  # done
+EXIT_UNEXPECTED = 1  # a bug or an environment failure: the traceback says where
+EXIT_BAD_INPUT = 2  # nothing was done: the message names the file, key or column and the fix
+EXIT_REJECTED = 3  # ingest finished, but some drives were rejected (their reasons are in the drives table)
+EPILOG = ("Docs: README.md and docs/ in the repository. Exit codes: 0 done, 1 unexpected failure, 2 bad input, "
+          "3 ingest done but some drives rejected.")
 
 
 def _set_pairs(items: list[str]) -> dict[str, str]:
@@ -33,7 +39,11 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
     summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
     print(f"{args.db}: {summary}")
-    return 0
+    if summary.rejected:
+        print(f"{summary.rejected} drive(s) rejected, each with its reason: logiq-sql query --db {args.db} "
+              "\"select drive_id, source_path, reject_reason from drives where status = 'rejected'\"")
+        return EXIT_REJECTED
+    return EXIT_OK
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -48,7 +58,7 @@ def cmd_match(args: argparse.Namespace) -> int:
 
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
-                   progress=_say(args.quiet))
+                   progress=_say(args.quiet), force=args.force)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -90,16 +100,29 @@ def cmd_explain(args: argparse.Namespace) -> int:
 
 
 def cmd_query(args: argparse.Namespace) -> int:
+    import duckdb
     import polars as pl
 
     from logiq_sql.db import connect
 
+    if not Path(args.db).is_file():
+        raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")
     with connect(args.db, read_only=True) as con:
-        frame = con.sql(args.sql).pl()
-    with pl.Config(tbl_rows=args.limit, tbl_cols=-1, fmt_str_lengths=40, tbl_width_chars=200,
+        try:
+            frame = con.sql(args.sql).pl()
+        except duckdb.Error as exc:  # the analyst's SQL: a bad-input error, not a crash
+            raise LogiqError(f"{exc}\n\nHint: the tables and their columns are in docs/tables.md.") from None
+    with pl.Config(tbl_rows=args.limit, tbl_cols=-1, fmt_str_lengths=60, tbl_width_chars=200,
                    tbl_hide_dataframe_shape=True, float_precision=2):
         print(frame)
     return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from logiq_sql.report import report
+
+    print(f"report written to {report(args.db, args.out).resolve()}")
+    return EXIT_OK
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -117,7 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "av2: Argoverse 2 sensor-log and motion-forecasting folders")
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("simulate", help="simulate drives with Eclipse SUMO (optional extra [sumo])", epilog=EPILOG,
@@ -148,7 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep ego-actor pairs whose centres are at most this far apart "
                         f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
     p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--force", action="store_true",
+                   help="rerun drives already matched with the same scenario version, parameters, ego and range "
+                        "(skipped by default)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
     p.set_defaults(func=cmd_match)
 
     p = sub.add_parser("scenarios", help="list scenarios with their parameters and defaults", epilog=EPILOG)
@@ -187,6 +213,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=40, help="rows to print (default 40)")
     p.set_defaults(func=cmd_query)
 
+    p = sub.add_parser("report", help="write one self-contained HTML report of a matched file", epilog=EPILOG,
+                       description="Coverage histograms, KPI distributions, the match table with filters, every "
+                                   "drive's status and the runs with their parameters, in one HTML file with inline "
+                                   "SVG charts (no network needed to view it).")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
+    p.add_argument("--out", required=True, metavar="FILE", help="HTML file to write, e.g. report.html")
+    p.set_defaults(func=cmd_report)
+
     add_label_parser(sub)
     add_evaluate_parser(sub)
     return parser
@@ -198,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except LogiqError as exc:
         print(f"logiq-sql: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

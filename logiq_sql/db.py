@@ -31,6 +31,8 @@ MATCHES = Table(
         _c("start_s", F, "t_s of the first frame.", False),
         _c("end_s", F, "t_s of the last frame.", False),
         _c("duration_s", F, "end_s - start_s.", False),
+        _c("run_id", S, "The run that produced the match: join match_runs using (run_id, scenario) for its "
+                        "parameter values."),
     ),
 )
 
@@ -103,14 +105,18 @@ MATCH_RUNS = Table(
         _c("params_json", S, "Every SQL parameter and its bound value, canonical units.", False),
         _c("overrides", S, "The --set values as written.", False),
         _c("ego_mode", S, "auto, recorded, all, every:N or an actor id.", False),
-        _c("drives", I, "Drives in the run.", False),
-        _c("matches", I, "Matches found.", False),
+        _c("drives", I, "Drives matched in the run (drives already up to date are not rerun, see drive_scenarios).",
+           False),
+        _c("matches", I, "Matches found on those drives.", False),
+        _c("relation_range_m", F, "The --relation-range of the run, metres."),
     ),
 )
 
 DRIVE_SCENARIOS = Table(
     "drive_scenarios",
-    "One row per (drive, scenario) of the latest run of that scenario over that drive.",
+    "One row per (drive, scenario) of the latest run of that scenario over that drive. A later run skips the pair "
+    "while its run had the same params_hash, ego_mode and relation_range_m (match --force reruns it); re-ingesting "
+    "the drive removes its rows.",
     (
         _c("drive_id", S, "Drive.", False),
         _c("scenario", S, "Scenario.", False),
@@ -118,6 +124,7 @@ DRIVE_SCENARIOS = Table(
         _c("egos", I, "SUTs considered in the drive.", False),
         _c("matches", I, "Matches found.", False),
         _c("status", S, "matched, no_match, no_ego (no actor could be the SUT) or rejected.", False),
+        _c("run_id", S, "The run that matched the pair: join match_runs using (run_id, scenario)."),
     ),
 )
 
@@ -182,6 +189,49 @@ def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Colu
         con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")
 
 
+# columns that mean the same in every derived table
+KEY_DOCS = {
+    "drive_id": "Drive.", "ego_id": "actor_id of the ego (SUT).", "actor_id": "Actor (tracks.actor_id).",
+    "frame": "Sample index.", "t_s": "Time since the start of the drive, seconds.",
+    "map_id": "Map.", "junction_id": "Junction.",
+}
+
+
+def header_docs(sql: str) -> tuple[str | None, dict[str, str]]:
+    """The grain and the column descriptions of a query file's header comment: ``-- grain: ...`` and
+    ``--   name[, name]   description`` lines, a description continuing on lines indented as deep."""
+    grain, docs, current, indent = None, {}, [], 0
+    for line in sql.splitlines():
+        if not line.startswith("--"):
+            break
+        body = line[2:]
+        if body.startswith(" grain:"):
+            grain = body.split(":", 1)[1].strip()
+            continue
+        m = re.match(r"(\s{2,})([a-z_][a-z0-9_]*(?:,\s*[a-z_][a-z0-9_]*)*)(\s{2,})(\S.*)", body)
+        if m:
+            current = [name.strip() for name in m.group(2).split(",")]
+            indent = len(m.group(1)) + len(m.group(2)) + len(m.group(3))
+            docs.update({name: m.group(4).strip() for name in current})
+        elif current and body.strip() and len(body) - len(body.lstrip()) >= indent:
+            docs.update({name: docs[name] + " " + body.strip() for name in current})
+        else:
+            current = []
+    return grain, docs
+
+
+def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, doc: str,
+                    column_docs: dict[str, str], fallback: str) -> None:
+    """Comment a table the matcher derives (relations, ...): its columns from ``column_docs``, the shared keys,
+    else ``fallback`` (where the definition is)."""
+    con.execute(f"comment on table {qualified} is {_quote(doc)}")
+    columns = con.execute("select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' "
+                          "and database_name = current_database()", {"t": name}).fetchall()
+    for (col,) in columns:
+        text = column_docs.get(col) or KEY_DOCS.get(col) or fallback
+        con.execute(f"comment on column {qualified}.{col} is {_quote(text)}")
+
+
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
 DEFAULT_MEMORY_LIMIT = "4GB"  # DuckDB spills to <file>.tmp beyond this instead of growing
 
@@ -205,6 +255,13 @@ def threads() -> int | None:
     return int(value)
 
 
+def _no_progress_bar(con: duckdb.DuckDBPyConnection) -> None:
+    """DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself. In Jupyter
+    without ipywidgets the bar is already off and turning it off raises, so only switch it off when it is on."""
+    if con.execute("select current_setting('enable_progress_bar')").fetchall()[0][0]:
+        con.execute("set enable_progress_bar = false")
+
+
 def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnection:
     """Open (and on first use create) a logiq_sql DuckDB file with every table and view."""
     path = Path(path)
@@ -213,12 +270,11 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
         config["threads"] = threads()
     if read_only:
         con = duckdb.connect(str(path), read_only=True, config=config)
-        con.execute("set enable_progress_bar = false")
+        _no_progress_bar(con)
         return con
     path.parent.mkdir(parents=True, exist_ok=True)
     con = duckdb.connect(str(path), config=config)
-    # DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself
-    con.execute("set enable_progress_bar = false")
+    _no_progress_bar(con)
     for table in TABLES:
         create_table(con, table)
     con.execute(DRIVES_VIEW)
@@ -265,7 +321,8 @@ def docs_markdown() -> str:
                 out.append(f"| `{column}` | {unit} | {doc} |")
     out += ["", "## `relations` and `ego_lanes`", "",
             "Kept from the last match run of each drive, for analysts: see docs/semantics.md for every column "
-            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`).", "",
+            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`). In the file, their columns carry "
+            "the descriptions of those files' headers as comments (as do `passages` and `encroachments`).", "",
             "## `passages` and `encroachments`", "",
             "Kept from the last run of a junction scenario on each drive: every stay of an ego or related actor in a "
             "junction with its entry and exit, legs and turn (`queries/junctions/passages.sql`), and the encroachment "

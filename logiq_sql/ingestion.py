@@ -22,6 +22,7 @@ from logiq_sql.readers.av2 import log_folders
 from logiq_sql.readers.base import DriveData
 from logiq_sql.readers.sumo import run_folders
 from logiq_sql.sql import query_text
+from logiq_sql.timing import stage
 
 FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2")
 
@@ -298,6 +299,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
         for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+        # new rows for a drive: its earlier match status no longer holds, so the next match reruns it
+        con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         for drive in maps.values():
@@ -305,16 +308,19 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
                 db.insert(con, table, getattr(drive, table))
         for drive, *_ in accepted:
             db.insert(con, "traffic_light_states", drive.traffic_light_states)
-        con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
-        con.execute("create or replace temp table _staged as " + query_text("staging/tracks.sql"))
-        con.unregister("tracks_raw")
-        con.execute("insert into tracks select * from _staged")
+        with stage("kinematics"):
+            con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
+            con.execute("create or replace temp table _staged as " + query_text("staging/tracks.sql"))
+            con.unregister("tracks_raw")
+            con.execute("insert into tracks select * from _staged")
         for map_id, drive in maps.items():
             on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
             con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
             staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from _staged "
                              "where drive_id in (select drive_id from _on_map)").pl()
-            db.insert(con, "track_lanes", locate(staged, drive.lanes))
+            with stage("localisation"):
+                located = locate(staged, drive.lanes)
+            db.insert(con, "track_lanes", located)
         db.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
             "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
@@ -335,7 +341,7 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
     rows = drive.rows_read or drive.tracks.height
     con.execute("begin transaction")
     try:
-        for table in schema.DRIVE_TABLE_NAMES:
+        for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, drive.drive_id)
         db.insert(con, "drive_inputs", pl.DataFrame([{
@@ -360,7 +366,7 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_id: str) -> None:
         if table in have:
             con.execute(f"delete from {table} where match_id in (select match_id from matches where drive_id = $d)",
                         {"d": drive_id})
-    for table in ("matches", "drive_scenarios", "relations", "ego_lanes", "passages", "encroachments"):
+    for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
         if table in have:
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive_id})
     con.execute("delete from coverage")

@@ -6,8 +6,10 @@ Every step is a query file in ``queries/`` run over the whole table set, with bo
     phase_1..n -> scenario_match -> scenario_matches       (per scenario)
     kpi queries -> kpis, coverage_samples -> coverage      (per scenario, then over the whole file)
 
-A run replaces the outputs of its scenarios on its drives in one transaction, so rerunning the same drives
-with the same parameters changes nothing, and an interrupted run leaves the previous results intact.
+A run is incremental: a (drive, scenario) pair whose latest run had the same params_hash (scenario version and
+every bound value), ego mode and relation range is skipped (``force`` reruns it). The rest is matched and
+replaces that scenario's outputs on those drives in one transaction per group, so an interrupted run leaves the
+previous results intact.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import duckdb
@@ -27,6 +29,7 @@ from logiq_sql.encroachment import encroachments
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import materialise, query_text, render_steps
+from logiq_sql.timing import stage
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -45,8 +48,12 @@ JUNCTION_STEPS = (
     ("junction_frames", "junctions/junction_frames.sql"),
     ("crossing_pairs", "junctions/crossing_pairs.sql"),
 )
-# kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive
-PERSISTED = ("relations", "ego_lanes", "passages", "encroachments")
+# kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive, with the
+# file whose header documents their columns
+PERSISTED = {"relations": "queries/relations/relations.sql", "ego_lanes": "queries/relations/ego_lanes.sql",
+             "passages": "queries/junctions/passages.sql", "encroachments": "logiq_sql/encroachment.py"}
+ENCROACHMENTS_GRAIN = ("one row per (drive_id, ego_id, actor_id) pair of junction passages whose swept paths share "
+                       "an area")
 
 
 @dataclass
@@ -58,9 +65,14 @@ class MatchResult:
     kpis: pl.DataFrame
     coverage: pl.DataFrame
     drives: pl.DataFrame
+    up_to_date: dict[str, int] = field(default_factory=dict)  # scenario -> drives skipped as already matched
 
     def summary(self) -> str:
         lines = []
+        skipped = {s: n for s, n in self.up_to_date.items() if n}
+        if skipped:
+            lines.append("already up to date (same scenario version, parameters, ego and range; --force reruns): "
+                         + ", ".join(f"{s} {n} drive(s)" for s, n in sorted(skipped.items())))
         counts = self.drives["status"].value_counts(sort=True) if not self.drives.is_empty() else None
         lines.append(f"drives: {self.drives.height}" + (
             " (" + ", ".join(f"{r['status']} {r['count']}" for r in counts.iter_rows(named=True)) + ")"
@@ -214,6 +226,8 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
     con.execute("create table if not exists kpis (match_id varchar not null, scenario varchar not null)")
     con.execute("comment on table kpis is 'One row per match: every KPI and sampled coverage value of its scenario, in the spec''s "
                 "units (column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
+    con.execute("comment on column kpis.match_id is 'Match (matches.match_id).'")
+    con.execute("comment on column kpis.scenario is 'Scenario.'")
     have = {r[0] for r in con.execute(
         "select column_name from duckdb_columns() where table_name = 'kpis'").fetchall()}
     for s in scenarios:
@@ -227,21 +241,23 @@ def _ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario
 def prepare_relations(con: duckdb.DuckDBPyConnection, group: list[Scenario], values: dict[str, object]) -> None:
     """The steps every scenario of ``group`` (one lane tolerance) shares: egos, relations and, when one of them
     needs it, the junction geometry and the encroachment areas."""
-    materialise(con, "egos", "relations/egos.sql", values)
-    for table, rel in RELATION_STEPS:
-        materialise(con, table, rel, values)
-    if any(s.junctions for s in group):
-        for table, rel in JUNCTION_STEPS:
+    with stage("relations"):
+        materialise(con, "egos", "relations/egos.sql", values)
+        for table, rel in RELATION_STEPS:
             materialise(con, table, rel, values)
-        con.register("_encroachments", encroachments(con))
-        con.execute("create or replace temp table encroachments as select * from _encroachments")
-        con.unregister("_encroachments")
+    if any(s.junctions for s in group):
+        with stage("junctions"):
+            for table, rel in JUNCTION_STEPS:
+                materialise(con, table, rel, values)
+            con.register("_encroachments", encroachments(con))
+            con.execute("create or replace temp table encroachments as select * from _encroachments")
+            con.unregister("_encroachments")
 
 
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
           overrides: dict[str, str] | None = None, drives: list[str] | None = None,
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
-          progress: Callable[[str], None] | None = None) -> MatchResult:
+          progress: Callable[[str], None] | None = None, force: bool = False) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -253,6 +269,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         drives: restrict the run to these drive ids (default: every ingested drive).
         relation_range: keep ego-actor pairs whose centres are at most this far apart.
         out: also write every output table as Parquet into this folder.
+        progress: called with one line per step.
+        force: rerun (drive, scenario) pairs that are already up to date.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {})
@@ -261,22 +279,33 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
     con = db.connect(db_path)
     try:
         run_drives = _run_drives(con, drives)
-        con.register("run_drives", run_drives)
         _ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
-        results = []
-        by_tolerance: dict[float, list[Scenario]] = {}
+        # scenarios that share a lane tolerance and the drives still to match share their relations
+        groups: dict[tuple[float, tuple[str, ...]], list[Scenario]] = {}
+        up_to_date: dict[str, int] = {}
         for s in chosen:
-            by_tolerance.setdefault(_lane_tolerance(s), []).append(s)
-        for tolerance, group in sorted(by_tolerance.items()):
+            todo = run_drives if force else _drives_to_match(con, s, run_drives, ego, range_m)
+            up_to_date[s.name] = run_drives.height - todo.height
+            if todo.height:
+                groups.setdefault((_lane_tolerance(s), tuple(todo["drive_id"])), []).append(s)
+        for step, ((tolerance, ids), group) in enumerate(sorted(groups.items()), 1):
+            todo = pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String})
+            con.register("run_drives", todo)
+            say(f"[{step}/{len(groups)}] {len(ids)} drive(s): {', '.join(s.name for s in group)}")
+            for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
+                con.execute(f"drop table if exists temp.main.{table}")
             prepare_relations(con, group, run_values(group[0], ego_values, range_m))
-            say(f"relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
+            say(f"  relations: {con.execute('select count(*) from relations').fetchall()[0][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
+            results = []
             for s in group:
                 results.append(_run_scenario(con, s, run_values(s, ego_values, range_m)))
-                say(f"{s.name}: {results[-1][0].height} matches")
-        _store(con, run_id, ego, run_drives, results)
+                say(f"  {s.name}: {results[-1][0].height} matches")
+            _store(con, run_id, ego, range_m, todo, results)
+        con.register("run_drives", run_drives)
         result = _result(con, run_drives, [s.name for s in chosen])
+        result.up_to_date = up_to_date
         if out is not None:
             export(con, out)
         return result
@@ -295,15 +324,31 @@ def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.
     return known
 
 
+def _drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.DataFrame, ego: str,
+                     range_m: float) -> pl.DataFrame:
+    """The drives of the run whose latest run of ``s`` differs in parameters, ego mode or relation range."""
+    con.register("_wanted", run_drives)
+    todo = con.sql(
+        "select w.drive_id from _wanted as w where not exists (select 1 from drive_scenarios as d "
+        "join match_runs as r on r.run_id = d.run_id and r.scenario = d.scenario "
+        "where d.drive_id = w.drive_id and d.scenario = $s and d.params_hash = $h and r.ego_mode = $ego "
+        "and r.relation_range_m = $range) order by w.drive_id",
+        params={"s": s.name, "h": s.params_hash(), "ego": ego, "range": range_m}).pl()
+    con.unregister("_wanted")
+    return todo
+
+
 def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str, object]):
-    for table, rel in phase_steps(s):
-        materialise(con, table, rel, values)
-    materialise(con, "scenario_matches", "match/identify.sql", values)
-    matches = con.sql("select * from scenario_matches").pl()
+    with stage(f"scenario {s.name}"):
+        for table, rel in phase_steps(s):
+            materialise(con, table, rel, values)
+        materialise(con, "scenario_matches", "match/identify.sql", values)
+        matches = con.sql("select * from scenario_matches").pl()
     metrics = matches.select("match_id")
-    for rel in s.kpi_queries:
-        materialise(con, "_kpi", rel, values)
-        metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
+    with stage("kpis"):
+        for rel in s.kpi_queries:
+            materialise(con, "_kpi", rel, values)
+            metrics = metrics.join(con.sql("select * from _kpi").pl(), on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
                           *[pl.col(c) for c in _metric_columns(s)])
     phases = pl.concat([
@@ -316,7 +361,8 @@ def _run_scenario(con: duckdb.DuckDBPyConnection, s: Scenario, values: dict[str,
     return matches, phases, kpis, _coverage_samples(s, metrics), _coverage_buckets(s), s, egos
 
 
-def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl.DataFrame, results) -> None:
+def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float, run_drives: pl.DataFrame,
+           results) -> None:
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     con.execute("begin transaction")
     try:
@@ -327,6 +373,7 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
             con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
+            _describe_persisted(con, stored, table)
         for matches, phases, kpis, samples, buckets, s, egos in results:
             # rows that hang off the matches first, then the matches themselves
             for table in ("match_phases", "kpis", "coverage_samples"):
@@ -337,24 +384,38 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, run_drives: pl
             con.execute("delete from coverage_buckets where scenario = $s", {"s": s.name})
             con.execute("delete from drive_scenarios where scenario = $s and drive_id in "
                         "(select drive_id from run_drives)", {"s": s.name})
-            db.insert(con, "matches", matches.select(MATCHES.column_names))
+            db.insert(con, "matches", matches.with_columns(run_id=pl.lit(run_id)).select(MATCHES.column_names))
             db.insert(con, "match_phases", phases.select(MATCH_PHASES.column_names))
             db.insert(con, "kpis", kpis)
             db.insert(con, "coverage_samples", samples)
             db.insert(con, "coverage_buckets", buckets)
-            db.insert(con, "drive_scenarios", _drive_status(con, run_drives, matches, egos, s))
+            db.insert(con, "drive_scenarios",
+                      _drive_status(con, run_drives, matches, egos, s).with_columns(run_id=pl.lit(run_id)))
             db.insert(con, "match_runs", pl.DataFrame([{
                 "run_id": run_id, "started_at": started, "scenario": s.name, "scenario_version": s.version,
                 "params_hash": s.params_hash(), "params_json": json.dumps(s.bindings(), sort_keys=True),
                 "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
-                "drives": run_drives.height, "matches": matches.height,
+                "drives": run_drives.height, "matches": matches.height, "relation_range_m": range_m,
             }], schema=db.MATCH_RUNS.polars_schema))
-        con.execute("delete from coverage")
-        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+        with stage("coverage"):
+            con.execute("delete from coverage")
+            con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
         raise
+
+
+def _describe_persisted(con: duckdb.DuckDBPyConnection, stored: str, table: str) -> None:
+    """Table and column comments for a kept table, from the header of the file that defines it."""
+    source = PERSISTED[table]
+    if source.endswith(".sql"):
+        grain, docs = db.header_docs(query_text(source.removeprefix("queries/")))
+    else:
+        grain, docs = ENCROACHMENTS_GRAIN, {}
+    db.comment_derived(con, f"{stored}.{table}", table,
+                       f"Kept from the last match run of each drive: {grain} ({source}, docs/semantics.md).",
+                       docs, f"See the header of {source} and docs/semantics.md.")
 
 
 def _drive_status(con, run_drives: pl.DataFrame, matches: pl.DataFrame, egos: pl.DataFrame, s: Scenario):

@@ -18,6 +18,11 @@ import polars as pl
 import shapely
 
 from logiq_sql.ingestion import ingest
+from logiq_sql.match import parse_ego, phase_steps, prepare_relations, run_values
+from logiq_sql.scenario import load_scenario
+from logiq_sql.sql import materialise
+
+LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
 
 W = 3.5
 R_LEFT = 11.75  # radius of the left turn's centre line, about (-10, -10)
@@ -97,3 +102,20 @@ def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | None = 
     path = tmp / "junction.duckdb"
     ingest("parquet", [folder], path)
     return path
+
+
+def left_turn_frames(db: Path, ego: str = "auto", drives: list[str] | None = None,
+                     tables: tuple[str, ...] = ("phase_frames",)) -> dict[str, pl.DataFrame]:
+    """The left turn's per-frame phase conditions (and any other step table named in ``tables``), computed
+    read-only from an ingested file the way match() computes them."""
+    import duckdb
+
+    s = load_scenario(LEFT_TURN)
+    with duckdb.connect(str(db), read_only=True) as con:
+        run = con.sql("select drive_id from drive_inputs").pl()
+        con.register("run_drives", run if drives is None else run.filter(pl.col("drive_id").is_in(drives)))
+        values = run_values(s, parse_ego(ego), 200.0)
+        prepare_relations(con, [s], values)
+        table, rel = phase_steps(s)[0]
+        materialise(con, table, rel, values)
+        return {t: con.sql(f"select * from {t}").pl() for t in tables}

@@ -8,10 +8,10 @@ import numpy as np
 import polars as pl
 import pytest
 import shapely
-from junction_helpers import drive, make_junction_db
+from junction_helpers import drive, left_turn_frames, make_junction_db
 
 from logiq_sql.explain import explain
-from logiq_sql.match import match, parse_ego, prepare_relations, run_values
+from logiq_sql.match import match
 
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
 T = np.round(np.arange(0, 200) * 0.1, 6)
@@ -126,14 +126,8 @@ def test_phase_columns_are_the_conjunction_of_the_listed_conditions(base):
     """The scenario file lists each phase's conditions for explain; they must be exactly the SQL's."""
     path, _ = base
     from logiq_sql.scenario import load_scenario
-    from logiq_sql.sql import materialise
     s = load_scenario(SCENARIO)
-    with duckdb.connect(str(path), read_only=True) as con:
-        con.register("run_drives", pl.DataFrame({"drive_id": ["j1"]}))
-        values = run_values(s, parse_ego("auto"), 200.0)
-        prepare_relations(con, [s], values)
-        materialise(con, "phase_frames", s.frames_query, values)
-        frames = con.sql("select * from phase_frames").pl()
+    frames = left_turn_frames(path, drives=["j1"])["phase_frames"]
     for i, phase in enumerate(s.phases, 1):
         both = pl.all_horizontal([pl.col(c.name).fill_null(False) for c in phase.conditions])
         assert frames.select((both == pl.col(f"phase_{i}").fill_null(False)).all()).item(), phase.name
@@ -144,15 +138,7 @@ def test_pet_is_null_when_both_boxes_are_in_the_area_at_once(tmp_path):
     encroachment area around 7 s, so PET is undefined (NULL, never a sentinel) and neither gave way."""
     path = make_junction_db(tmp_path, [drive("ego", T, ego_s(T, wait_until=4.2), "S_left", is_ego=True),
                                        drive("car", T, oncoming_s(T, enters_at=5.8), "N_straight")])
-    from logiq_sql.scenario import load_scenario
-    from logiq_sql.sql import materialise
-    s = load_scenario(SCENARIO)
-    with duckdb.connect(str(path), read_only=True) as con:
-        con.register("run_drives", pl.DataFrame({"drive_id": ["j1"]}))
-        values = run_values(s, parse_ego("auto"), 200.0)
-        prepare_relations(con, [s], values)
-        materialise(con, "phase_frames", s.frames_query, values)
-        frames = con.sql("select * from phase_frames").pl()
+    frames = left_turn_frames(path, drives=["j1"])["phase_frames"]
     assert frames["encroachment_area_m2"].drop_nulls().min() > 1
     assert frames["pet_s"].is_null().all() and not frames["ego_yields"].any()
 

@@ -14,12 +14,11 @@ import duckdb
 import polars as pl
 import pytest
 import shapely
+from junction_helpers import left_turn_frames
 
 from logiq_sql.explain import explain
 from logiq_sql.ingestion import ingest
-from logiq_sql.match import match, parse_ego, phase_steps, prepare_relations, run_values
-from logiq_sql.scenario import load_scenario
-from logiq_sql.sql import materialise
+from logiq_sql.match import match
 
 DATA = Path(__file__).parent / "data"
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
@@ -28,31 +27,21 @@ PEACH = DATA / "commonroad_ngsim/scenarios_2020a_with_traffic_lights/USA_Peach-4
 MIAMI = "3b3570b4-7b0b-3268-a571-b0889dbf40b6"  # the ego stops in a junction, then turns left 80 degrees
 PITTSBURGH = "7fab2350-7eaf-3b7e-a39d-6937a4c1bede"  # stops 1.5 m before a junction, turns left as the log ends
 ONCOMING = "2357dba4-c8f6-40e7-aee3-6af6a2908521"  # passes the Miami ego while it stands in the junction
-
-
-def _phase_frames(db: Path, ego: str) -> dict[str, pl.DataFrame]:
-    s = load_scenario(SCENARIO)
-    with duckdb.connect(str(db), read_only=True) as con:
-        con.register("run_drives", con.sql("select drive_id from drive_inputs").pl())
-        values = run_values(s, parse_ego(ego), 200.0)
-        prepare_relations(con, [s], values)
-        for table, rel in phase_steps(s)[:1]:
-            materialise(con, table, rel, values)
-        return {t: con.sql(f"select * from {t}").pl() for t in ("phase_frames", "passages", "tracks")}
+TABLES = ("phase_frames", "passages", "tracks")
 
 
 @pytest.fixture(scope="module")
 def ngsim(tmp_path_factory):
     db = tmp_path_factory.mktemp("ngsim_lt") / "ngsim.duckdb"
     ingest("commonroad", [LANKER, PEACH], db)
-    return db, match(db, [SCENARIO], ego="all"), _phase_frames(db, "all")
+    return db, match(db, [SCENARIO], ego="all"), left_turn_frames(db, "all", tables=TABLES)
 
 
 @pytest.fixture(scope="module")
 def av2(tmp_path_factory):
     db = tmp_path_factory.mktemp("av2_lt") / "av2.duckdb"
     ingest("av2", [DATA / "av2"], db)
-    return db, match(db, [SCENARIO]), _phase_frames(db, "recorded")
+    return db, match(db, [SCENARIO]), left_turn_frames(db, "recorded", tables=TABLES)
 
 
 def test_ngsim_junction_entries_and_exits_agree_with_the_junction_polygons(ngsim):

@@ -1,0 +1,254 @@
+"""Benchmark tiers: the whole pipeline (ingest, localisation, relations, all four scenarios, KPIs, coverage)
+on S (~1 M track rows), M (~10 M) and L (>= 50 M), against a plain DuckDB scan measured in the same run.
+
+    make bench TIER=S                       # = python -m benchmarks.tiers --tier S
+    python -m benchmarks.tiers --tier M --ego every:10
+
+Input. The base drives are the bundled real drives (tests/data: 92 NGSIM scenes via CommonRoad, 4 nuScenes
+scenes via ScenarioNet, 5 Argoverse 2 logs) and SUMO drives: the bundled motorway and junction runs and, when
+the [sumo] extra is installed, motorway seeds 2 and 3 and junction seed 2 (5 simulated minutes each, generated
+once into benchmarks/work/base and reused). They are exported as canonical Parquet and replicated, drive by
+drive in a fixed shuffled order, until the tier's row count is reached: copy k gets drive ids suffixed ``~k``
+and its times and frames shifted by k hours (maps are shared, as a fleet driving the same roads would).
+
+SUT: ``--ego every:10`` (default): every 10th vehicle of each drive by actor id, plus the recorded ego where
+the drive has one (nuScenes, Argoverse 2).
+
+Measured in one process, in this order: the floor (a plain DuckDB scan and group-by over the tier's track
+columns), ingest of the replicated Parquet (kinematics SQL, shapely localisation, writing the file), matching
+every scenario with KPIs and coverage, the floor again (the faster floor is used). Each stage's wall time, rows
+per second and peak resident memory come from logiq_sql.timing. At tier S the per-pair baseline
+(benchmarks/baseline.py) runs on the same file, is checked to give the same matches, and is timed against the
+SQL matcher on the same two scenarios. Written: benchmarks/results/<TIER>.json and <TIER>.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import multiprocessing
+import platform
+import resource
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import duckdb
+import polars as pl
+
+from logiq_sql import schema
+from logiq_sql.db import memory_limit
+from logiq_sql.ingestion import ingest
+from logiq_sql.match import match
+from logiq_sql.timing import recording
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data"
+WORK = ROOT / "benchmarks" / "work"
+RESULTS = ROOT / "benchmarks" / "results"
+TIERS = {"S": 1_000_000, "M": 10_000_000, "L": 50_000_000}
+GENERATED_SUMO = (("motorway", 2), ("motorway", 3), ("junction", 2))  # 5 simulated minutes each
+BASE_VERSION = "1"  # bump when the base drives change, so the cached base is rebuilt
+PER_DRIVE = ("tracks", "traffic_light_states")
+FLOOR_SQL = """
+select drive_id, actor_id, count(*), min(t_s), max(t_s), avg(x_m), avg(y_m), avg(speed_mps), max(accel_mps2)
+from read_parquet($path)
+group by drive_id, actor_id
+"""
+BASELINE_SCENARIOS = ("follower_vehicle", "cyclist_close_to_moving_sut")
+
+
+def build_base(base: Path) -> list[str]:
+    """Ingest the base drives and export their canonical tables as Parquet into ``base``; returns the sources."""
+    db = base / "base.duckdb"
+    sources = ["tests/data/commonroad_ngsim", "tests/data/nuscenes_mini_scenarionet", "tests/data/av2",
+               "tests/data/sumo/motorway_s1", "tests/data/sumo/junction_s1"]
+    ingest("commonroad", [DATA / "commonroad_ngsim"], db)
+    ingest("scenarionet", [DATA / "nuscenes_mini_scenarionet"], db)
+    ingest("av2", [DATA / "av2"], db)
+    runs = [DATA / "sumo" / "motorway_s1", DATA / "sumo" / "junction_s1"]
+    try:
+        from logiq_sql.simulate import simulate
+
+        for kind, seed in GENERATED_SUMO:
+            out = base / "sumo" / f"{kind}_s{seed}"
+            simulate(kind, 5.0, seed, out)
+            runs.append(out)
+            sources.append(f"logiq-sql simulate {kind} --minutes 5 --seed {seed}")
+    except ImportError:
+        print("SUMO is not installed ([sumo] extra): the base has the bundled SUMO runs only", file=sys.stderr)
+    ingest("sumo", runs, db)
+    with duckdb.connect(str(db), read_only=True) as con:
+        for table in ("drive_inputs", *PER_DRIVE, *schema.MAP_TABLE_NAMES):
+            con.execute(f"copy (select * from {table}) to '{base / table}.parquet' (format parquet)")
+    (base / "sources.json").write_text(json.dumps({"version": BASE_VERSION, "sources": sources}, indent=2))
+    return sources
+
+
+def base_sources() -> list[str]:
+    base = WORK / "base"
+    stamp = base / "sources.json"
+    if stamp.exists() and json.loads(stamp.read_text()).get("version") == BASE_VERSION:
+        return json.loads(stamp.read_text())["sources"]
+    shutil.rmtree(base, ignore_errors=True)
+    base.mkdir(parents=True)
+    return build_base(base)
+
+
+def replicate(rows: int, out: Path) -> int:
+    """Write the tier's canonical Parquet into ``out``: base drives, copy after copy, until ``rows`` track rows."""
+    base = WORK / "base"
+    drives = pl.read_parquet(base / "drive_inputs.parquet").filter(pl.col("status") == "ingested")
+    tracks = pl.scan_parquet(base / "tracks.parquet")
+    sizes = tracks.group_by("drive_id").len().collect()
+    # a fixed shuffled order, so that a tier cut short of a whole copy still mixes the sources
+    order = (drives.join(sizes, on="drive_id")
+             .with_columns(key=pl.col("drive_id").map_elements(lambda d: hashlib.md5(d.encode()).hexdigest(),
+                                                               return_dtype=pl.String))
+             .sort("key"))
+    picks, total, k = [], 0, 0
+    while total < rows:
+        for d in order.iter_rows(named=True):
+            if total >= rows:
+                break
+            picks.append((d["drive_id"], k, round(3600.0 * k / d["dt_s"])))
+            total += d["len"]
+        k += 1
+    plan = pl.DataFrame(picks, schema={"drive_id": pl.String, "copy": pl.Int64, "frame_shift": pl.Int64},
+                        orient="row")
+    out.mkdir(parents=True, exist_ok=True)
+
+    def copied(frame: pl.LazyFrame) -> pl.LazyFrame:
+        shifted = frame.join(plan.lazy(), on="drive_id").with_columns(
+            pl.col("drive_id") + "~" + pl.col("copy").cast(pl.String),
+            pl.col("frame") + pl.col("frame_shift"))
+        if "t_s" in frame.collect_schema().names():
+            shifted = shifted.with_columns(pl.col("t_s") + 3600.0 * pl.col("copy"))
+        return shifted.drop("copy", "frame_shift")
+
+    copied(tracks.select(schema.TRACKS.column_names)).sink_parquet(out / "tracks.parquet", row_group_size=500_000)
+    copied(pl.scan_parquet(base / "traffic_light_states.parquet")).sink_parquet(out / "traffic_light_states.parquet")
+    (drives.join(plan, on="drive_id")
+     .with_columns(pl.col("drive_id") + "~" + pl.col("copy").cast(pl.String))
+     .select("drive_id", "dt_s", "map_id", "ego_actor_id", "attribution")
+     .write_parquet(out / "drives.parquet"))
+    for table in schema.MAP_TABLE_NAMES:
+        shutil.copy(base / f"{table}.parquet", out / f"{table}.parquet")
+    return total
+
+
+def prepare(rows: int, out: Path) -> tuple[int, list[str]]:
+    sources = base_sources()
+    return replicate(rows, out), sources
+
+
+def floor_s(path: Path) -> float:
+    start = time.perf_counter()
+    with duckdb.connect() as con:
+        con.execute(FLOOR_SQL, {"path": str(path)}).fetchall()
+    return time.perf_counter() - start
+
+
+def run_baseline(db: Path, sql_s: float) -> dict[str, object]:
+    """Time the per-pair baseline and check it finds exactly the SQL matcher's matches."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import baseline
+
+    start = time.perf_counter()
+    found = baseline.run(db)
+    seconds = time.perf_counter() - start
+    with duckdb.connect(str(db), read_only=True) as con:
+        ours = con.sql("select scenario, drive_id, ego_id, actor_id, start_frame, end_frame from matches").pl()
+    agree = {}
+    for name, frame in found.items():
+        mine = set(ours.filter(pl.col("scenario") == name).drop("scenario").iter_rows())
+        theirs = {(r.drive_id, r.ego_id, r.actor_id, int(r.start_frame), int(r.end_frame))
+                  for r in frame.itertuples()}
+        agree[name] = {"sql": len(mine), "baseline": len(theirs), "same": mine == theirs}
+    return {"baseline_s": seconds, "sql_s": sql_s, "ratio_to_baseline": seconds / sql_s, "matches": agree}
+
+
+def markdown(r: dict) -> str:
+    lines = [f"# Tier {r['tier']}: {r['rows']:,} track rows, {r['drives']:,} drives, ego {r['ego']}", "",
+             f"Measured {r['measured_at']} on {r['machine']}. Floor (plain DuckDB scan + group-by): "
+             f"{r['floor_s']:.2f} s ({r['rows'] / r['floor_s']:,.0f} rows/s).", "",
+             "| stage | wall s | rows/s | x floor | peak RSS GiB |", "|---|---:|---:|---:|---:|"]
+    for name, s in r["stages"].items():
+        lines.append(f"| {name} | {s['seconds']:.2f} | {s['rows_per_s']:,.0f} | {s['ratio_to_floor']:.1f} | "
+                     f"{s['peak_rss_bytes'] / 2**30:.2f} |")
+    lines += ["", f"**Pipeline**: {r['pipeline_s']:.1f} s = **{r['ratio_to_floor']:.1f}x the floor**; "
+              f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB; {r['matches']:,} matches."]
+    if r.get("baseline"):
+        b = r["baseline"]
+        lines += ["", f"**Per-pair baseline** (follower_vehicle + cyclist_close_to_moving_sut): {b['baseline_s']:.1f} s "
+                  f"vs the SQL matcher's {b['sql_s']:.1f} s on the same two scenarios: "
+                  f"**{b['ratio_to_baseline']:.1f}x**; same matches: "
+                  + ", ".join(f"{k} {v['sql']} / {v['baseline']} ({'identical' if v['same'] else 'DIFFERENT'})"
+                              for k, v in b["matches"].items()) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tier", choices=list(TIERS), default="S")
+    parser.add_argument("--rows", type=int, help="override the tier's row count (for trying the harness)")
+    parser.add_argument("--ego", default="every:10", help="SUT choice (see match --ego; default every:10)")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the per-pair baseline at tier S")
+    args = parser.parse_args(argv)
+    rows = args.rows or TIERS[args.tier]
+    work = WORK / args.tier
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    # the input is prepared in a child process, so the peak memory below is the pipeline's own
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        n, sources = pool.apply(prepare, (rows, work / "parquet"))
+    tracks = work / "parquet" / "tracks.parquet"
+    db = work / "bench.duckdb"
+
+    floor_first = floor_s(tracks)
+    with recording() as rec:
+        start = time.perf_counter()
+        summary = ingest("parquet", [work / "parquet"], db)
+        ingest_s = time.perf_counter() - start
+        start = time.perf_counter()
+        result = match(db, ego=args.ego)
+        match_s = time.perf_counter() - start
+    floor = min(floor_first, floor_s(tracks))
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+    stages = {"ingest (read, kinematics, write)": ingest_s - rec.seconds.get("localisation", 0.0)}
+    stages |= {name: rec.seconds[name] for name in rec.seconds if name not in ("kinematics",)}
+    stages["match: storing results"] = match_s - sum(v for k, v in rec.seconds.items()
+                                                     if k not in ("kinematics", "localisation"))
+    peaks = dict(rec.peak_rss_bytes)
+    peaks["ingest (read, kinematics, write)"] = max(peaks.get("kinematics", 0), peaks.get("localisation", 0))
+    report = {
+        "tier": args.tier, "rows": n, "drives": summary.drives, "ego": args.ego, "sources": sources,
+        "matches": result.matches.height,
+        "matches_per_scenario": dict(result.matches.group_by("scenario").len().sort("scenario").iter_rows()),
+        "floor_s": floor, "ingest_s": ingest_s, "match_s": match_s, "pipeline_s": ingest_s + match_s,
+        "ratio_to_floor": (ingest_s + match_s) / floor, "cost_per_row_us": 1e6 * (ingest_s + match_s) / n,
+        "peak_rss_bytes": peak, "duckdb_memory_limit": memory_limit(),
+        "stages": {name: {"seconds": s, "rows_per_s": n / s if s > 0 else None, "ratio_to_floor": s / floor,
+                          "peak_rss_bytes": peaks.get(name, peak)} for name, s in stages.items()},
+        "measured_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "machine": f"{platform.machine()}, {multiprocessing.cpu_count()} cores, Python {platform.python_version()}",
+    }
+    if args.tier == "S" and not args.no_baseline:
+        start = time.perf_counter()
+        # force: the drives were just matched with the same parameters, and an up-to-date run would be skipped
+        match(db, scenarios=list(BASELINE_SCENARIOS), ego=args.ego, force=True)
+        report["baseline"] = run_baseline(db, time.perf_counter() - start)
+        report["ratio_to_baseline"] = report["baseline"]["ratio_to_baseline"]
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{args.tier}.json").write_text(json.dumps(report, indent=2))
+    (RESULTS / f"{args.tier}.md").write_text(markdown(report))
+    print(markdown(report))
+    print(f"written to {RESULTS / args.tier}.json and .md")
+    return report
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""One self-contained HTML report of a matched DuckDB file, for scheduled runs.
+
+Charts are inline SVG drawn by ``logiq_sql.plots``; the match table's filter is a few lines of inline JavaScript.
+Nothing is fetched from the network, so the file can be mailed, archived or opened offline.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import html
+import io
+import re
+from pathlib import Path
+
+import matplotlib
+import polars as pl
+
+from logiq_sql import plots
+from logiq_sql.db import connect
+from logiq_sql.errors import InputError
+
+MATCH_COLUMNS = ("scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s", "params_hash")
+
+STYLE = """
+body { font: 14px/1.4 system-ui, sans-serif; margin: 1.5em auto; max-width: 1200px; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 2em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; font-size: 12px; }
+th, td { border: 1px solid #ddd; padding: 2px 6px; text-align: left; }
+th { background: #f2f2f2; position: sticky; top: 0; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.cards { display: flex; gap: 1em; flex-wrap: wrap; }
+.card { border: 1px solid #ddd; border-radius: 6px; padding: .5em 1em; background: #fafafa; }
+.card b { display: block; font-size: 1.4em; }
+.scroll { max-height: 480px; overflow: auto; border: 1px solid #ddd; }
+.chart svg { max-width: 100%; height: auto; }
+.filters { margin: .5em 0; display: flex; gap: 1em; align-items: center; }
+.status-rejected { color: #b00; } .status-matched { color: #060; }
+"""
+
+# filters the match table by scenario and by free text over every cell
+SCRIPT = """
+(function () {
+  const rows = Array.from(document.querySelectorAll('#matches tbody tr'));
+  const scenario = document.getElementById('scenario-filter');
+  const text = document.getElementById('text-filter');
+  const count = document.getElementById('match-count');
+  function apply() {
+    const s = scenario.value, t = text.value.trim().toLowerCase();
+    let shown = 0;
+    for (const row of rows) {
+      const ok = (!s || row.dataset.scenario === s) && (!t || row.textContent.toLowerCase().includes(t));
+      row.hidden = !ok;
+      if (ok) shown += 1;
+    }
+    count.textContent = shown + ' of ' + rows.length + ' matches';
+  }
+  scenario.addEventListener('change', apply);
+  text.addEventListener('input', apply);
+  apply();
+})();
+"""
+
+
+def _svg(fig) -> str:
+    """A figure as inline SVG: text stays text, no date, stable ids, so the same data gives the same file."""
+    buf = io.StringIO()
+    with matplotlib.rc_context({"svg.fonttype": "none", "svg.hashsalt": "logiq-sql"}):
+        fig.savefig(buf, format="svg", metadata={"Date": None})
+    text = re.sub(r"<metadata>.*?</metadata>", "", buf.getvalue(), flags=re.DOTALL)  # RDF boilerplate
+    return '<div class="chart">' + text[text.index("<svg"):] + "</div>"
+
+
+def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | None = None) -> str:
+    numeric = {c for c, t in frame.schema.items() if t.is_numeric()}
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in frame.columns)
+    body = []
+    for row in frame.iter_rows(named=True):
+        cells = []
+        for c, v in row.items():
+            text = "" if v is None else (f"{v:.2f}" if isinstance(v, float) else str(v))
+            css = ' class="num"' if c in numeric else (f' class="status-{html.escape(text)}"' if c == "status" else "")
+            cells.append(f"<td{css}>{html.escape(text)}</td>")
+        attr = f' data-{row_attr}="{html.escape(str(row[row_attr]))}"' if row_attr else ""
+        body.append(f"<tr{attr}>{''.join(cells)}</tr>")
+    ident = f' id="{table_id}"' if table_id else ""
+    return f"<table{ident}><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _load(db: str | Path) -> dict[str, pl.DataFrame]:
+    if not Path(db).is_file():
+        raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
+    with connect(db, read_only=True) as con:
+        return {
+            "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
+                              "rows_rejected, reject_reason from drives order by status, drive_id").pl(),
+            "matches": con.sql(f"select {', '.join(MATCH_COLUMNS)} from matches "
+                               "order by scenario, drive_id, start_s, ego_id, actor_id").pl(),
+            "kpis": con.sql("select * from kpis").pl(),
+            "coverage": con.sql("select * from coverage").pl(),
+            "runs": con.sql("select run_id, started_at, scenario, scenario_version, params_hash, overrides, ego_mode, "
+                            "drives, matches from match_runs order by run_id desc, scenario").pl(),
+        }
+
+
+def report(db: str | Path, out: str | Path) -> Path:
+    """Write the HTML report of ``db`` to ``out`` and return its path."""
+    data = _load(db)
+    drives, matches, runs = data["drives"], data["matches"], data["runs"]
+    scenarios = sorted(set(data["coverage"]["scenario"]) | set(matches["scenario"]))
+    status = drives.group_by("status").len().sort("status")
+    cards = [("drives", drives.height), ("matches", matches.height), ("scenarios run", runs["scenario"].n_unique()),
+             *[(f"drives {s}", n) for s, n in status.rows()]]
+    parts = [
+        f"<h1>logiq_sql report: {html.escape(Path(db).name)}</h1>",
+        (f"<p>Written {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} from "
+         f"<code>{html.escape(str(db))}</code>. Tables and columns: docs/tables.md.</p>"),
+        '<div class="cards">' + "".join(f'<div class="card"><b>{n}</b>{html.escape(k)}</div>' for k, n in cards)
+        + "</div>",
+        "<h2>Coverage</h2><p>Hits per bucket over every match in the file; empty buckets are shaded red.</p>",
+    ]
+    parts += [_svg(plots.coverage_grid(data["coverage"], s)) for s in scenarios
+              if not data["coverage"].filter(pl.col("scenario") == s).is_empty()]
+    parts.append("<h2>KPI distributions</h2>")
+    for s in scenarios:
+        if plots.kpi_columns(data["kpis"], s):
+            parts.append(_svg(plots.kpi_grid(data["kpis"], s)))
+        else:
+            parts.append(f"<p>{html.escape(s)}: no matches, no KPI values.</p>")
+    options = "".join(f'<option value="{html.escape(s)}">{html.escape(s)}</option>' for s in scenarios)
+    parts += [
+        "<h2>Matches</h2>",
+        ('<div class="filters"><label>scenario <select id="scenario-filter"><option value="">all</option>'
+         f'{options}</select></label><label>contains <input id="text-filter" type="search" '
+         'placeholder="drive, actor, ..."></label><span id="match-count"></span></div>'),
+        '<div class="scroll">' + _table(matches, "matches", row_attr="scenario") + "</div>",
+        "<h2>Drives</h2><p>Every drive that went in, with its status over all scenarios run.</p>",
+        '<div class="scroll">' + _table(drives, "drives") + "</div>",
+        "<h2>Runs</h2><p>Every match run and the parameters it used (params_json in the match_runs table).</p>",
+        '<div class="scroll">' + _table(runs, "runs") + "</div>",
+    ]
+    page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>logiq_sql report: '
+            f'{html.escape(Path(db).name)}</title><style>{STYLE}</style></head><body>\n' + "\n".join(parts)
+            + f"\n<script>{SCRIPT}</script>\n</body></html>\n")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(page, encoding="utf-8")
+    return out

@@ -1,0 +1,60 @@
+"""The notebooks in notebooks/ run top to bottom on the bundled data and draw their pictures (executed copies go to
+a temporary folder; the committed notebooks have no outputs)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = ROOT / "notebooks"
+
+
+def execute(name: str, tmp_path: Path, monkeypatch) -> nbformat.NotebookNode:
+    # the kernel imports logiq_sql from this checkout, whatever is installed in the environment
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}}).execute()
+    nbformat.write(nb, tmp_path / name)
+    return nb
+
+
+def outputs(nb: nbformat.NotebookNode, kind: str) -> list[str]:
+    """Every output of the given MIME type (image/png, text/plain, or 'stream' for printed text)."""
+    found = []
+    for cell in nb.cells:
+        for out in cell.get("outputs", []):
+            if kind == "stream" and out.output_type == "stream":
+                found.append(out.text)
+            elif kind in out.get("data", {}):
+                found.append(out.data[kind])
+    return found
+
+
+@pytest.mark.parametrize("name", ["quickstart.ipynb", "exploration.ipynb"])
+def test_committed_notebooks_have_no_outputs(name):
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    assert [c for c in nb.cells if c.cell_type == "code" and (c.outputs or c.execution_count)] == []
+
+
+def test_quickstart(tmp_path, monkeypatch):
+    nb = execute("quickstart.ipynb", tmp_path, monkeypatch)
+    printed = "".join(outputs(nb, "stream"))
+    assert "3 drive(s) ingested, 0 rejected" in printed and "4 drive(s) ingested, 0 rejected" in printed
+    assert "unprotected_left_turn_with_yield_and_traffic_light: 17 matches in 1 drive(s)" in printed
+    assert "sut_cut_out:" in printed
+    assert len(outputs(nb, "image/png")) == 2  # the cut-out timeline and the follower coverage
+    assert any("matches_per_scenario" in t for t in outputs(nb, "text/html"))
+
+
+def test_exploration(tmp_path, monkeypatch):
+    nb = execute("exploration.ipynb", tmp_path, monkeypatch)
+    images = outputs(nb, "image/png")
+    # timeline, two bird's-eye views, four coverage grids, KPI grid
+    assert len(images) == 8
+    tables = "".join(outputs(nb, "text/html"))
+    assert "pet_between_sut_and_npc_s" in tables and "empty_buckets" in tables
