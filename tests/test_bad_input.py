@@ -195,7 +195,7 @@ def test_unsorted_rows_give_the_same_tracks_and_matches(tmp_path):
     _, sorted_matches = run(tmp_path / "sorted", scene())
     drives, matches = run(tmp_path / "shuffled", scene().sample(fraction=1.0, shuffle=True, seed=7))
     assert drives["d1"]["rows_rejected"] == 0
-    assert matches.drop("match_id").equals(sorted_matches.drop("match_id"))
+    assert matches.drop("run_id").equals(sorted_matches.drop("run_id"))
     assert matches["match_id"].to_list() == sorted_matches["match_id"].to_list()
     stored = [duckdb.connect(str(tmp_path / f"{d}/x.duckdb"), read_only=True).sql(
         "select * from tracks order by actor_id, frame").pl() for d in ("sorted", "shuffled")]
