@@ -299,8 +299,9 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
         for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-        # new rows for a drive: its earlier match status no longer holds, so the next match reruns it
+        # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
         con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
+        _drop_outputs(con, ids["drive_id"].to_list())
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         for drive in maps.values():
@@ -343,7 +344,7 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
     try:
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
-        _drop_outputs(con, drive.drive_id)
+        _drop_outputs(con, [drive.drive_id])
         db.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
@@ -356,18 +357,23 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         raise
 
 
-def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_id: str) -> None:
-    """A drive that is now rejected keeps no matches from an earlier run of its old data (drives would report
-    them); the coverage histograms are recounted without them."""
-    if not con.execute("select count(*) from matches where drive_id = $d", {"d": drive_id}).fetchall()[0][0]:
-        return
-    have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
-    for table in ("match_phases", "kpis", "coverage_samples"):
-        if table in have:
-            con.execute(f"delete from {table} where match_id in (select match_id from matches where drive_id = $d)",
-                        {"d": drive_id})
-    for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
-        if table in have:
-            con.execute(f"delete from {table} where drive_id = $d", {"d": drive_id})
-    con.execute("delete from coverage")
-    con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
+    """A drive that is re-ingested or now rejected keeps no matches from an earlier run of its old data (drives
+    and matches would report them until the next match); the coverage histograms are recounted without them."""
+    con.register("_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String}))
+    try:
+        if not con.execute("select count(*) from matches where drive_id in (select drive_id from _stale)"
+                           ).fetchall()[0][0]:
+            return
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+        for table in ("match_phases", "kpis", "coverage_samples"):
+            if table in have:
+                con.execute(f"delete from {table} where match_id in (select match_id from matches "
+                            "where drive_id in (select drive_id from _stale))")
+        for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
+            if table in have:
+                con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
+        con.execute("delete from coverage")
+        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+    finally:
+        con.unregister("_stale")
