@@ -243,6 +243,18 @@ def memory_limit() -> str:
     return value
 
 
+THREADS_ENV = "LOGIQ_SQL_THREADS"  # DuckDB worker threads; unset: DuckDB's default (the machine's cores)
+
+
+def threads() -> int | None:
+    value = os.environ.get(THREADS_ENV, "").strip()
+    if not value:
+        return None
+    if not value.isdigit() or int(value) < 1:
+        raise LogiqError(f"{THREADS_ENV}={value!r}: write a whole number of threads >= 1, or unset it.")
+    return int(value)
+
+
 def _no_progress_bar(con: duckdb.DuckDBPyConnection) -> None:
     """DuckDB's own progress bar writes into the caller's stdout; logiq_sql reports progress itself. In Jupyter
     without ipywidgets the bar is already off and turning it off raises, so only switch it off when it is on."""
@@ -253,7 +265,9 @@ def _no_progress_bar(con: duckdb.DuckDBPyConnection) -> None:
 def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnection:
     """Open (and on first use create) a logiq_sql DuckDB file with every table and view."""
     path = Path(path)
-    config = {"memory_limit": memory_limit()}
+    config: dict[str, object] = {"memory_limit": memory_limit()}
+    if threads() is not None:
+        config["threads"] = threads()
     if read_only:
         con = duckdb.connect(str(path), read_only=True, config=config)
         _no_progress_bar(con)

@@ -62,7 +62,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
             out += sorted(f for f in p.rglob("*") if f.is_file() and f.name.endswith(_SUFFIXES[fmt]))
         else:
             out.append(p)
-    return out
+    return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
@@ -79,12 +79,13 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     summary = IngestSummary()
     batch: list[DriveData] = []
     batch_rows = 0
+    seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
     try:
         for i, path in enumerate(files, 1):
             count = 0
             try:
                 for drive in reader(path):  # readers may stream: drives are written as batches fill up
-                    batch.append(drive)
+                    batch.append(_unique(drive, seen))
                     batch_rows += drive.tracks.height
                     count += 1
                     if batch_rows >= BATCH_ROWS:
@@ -92,7 +93,8 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
                         batch, batch_rows = [], 0
             except LogiqError as exc:
                 # the file could not be read: one rejected drive named after it
-                _reject(con, DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()), str(exc))
+                _reject(con, _unique(DriveData(path.name.split(".")[0], fmt, str(path), math.nan, pl.DataFrame()),
+                                     seen), str(exc))
                 summary.rejected += 1
                 if progress:
                     progress(f"[{i}/{len(files)}] {path.name}: rejected: {exc}")
@@ -105,6 +107,21 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     return summary
 
 
+def _unique(drive: DriveData, seen: dict[str, str]) -> DriveData:
+    """The drive, or, when another file of this run already gave its drive_id, a rejected drive under an id that
+    names its file: the first is kept, the second is accounted for, neither replaces the other silently.
+    (Ingesting the same file again, in this run or a later one, replaces the drive: ingest is idempotent.)"""
+    first = seen.setdefault(drive.drive_id, drive.source_path)
+    if first == drive.source_path:
+        return drive
+    clash = DriveData(f"{drive.drive_id} ({drive.source_path})", drive.source_format, drive.source_path,
+                      drive.dt_s, pl.DataFrame(), rows_read=drive.rows_read or drive.tracks.height,
+                      reject_reason=f"{drive.source_path}: drive_id '{drive.drive_id}' was already read from {first} "
+                                    "in this run. Fix: give every drive its own drive_id.")
+    seen[clash.drive_id] = drive.source_path
+    return clash
+
+
 def _count(summary: IngestSummary, written: list[tuple[DriveData, int]]) -> None:
     for drive, kept in written:
         if kept:
@@ -115,32 +132,60 @@ def _count(summary: IngestSummary, written: list[tuple[DriveData, int]]) -> None
             summary.rejected += 1
 
 
-def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
-    """Check a reader's rows: kinds known, values finite, one row per (actor, frame), sizes filled.
+# Plausibility limits for values that reached ingest in the wrong unit or from a broken writer (docs/semantics.md,
+# "Bad input"). Far beyond any real drive, so real data never trips them.
+MAX_ABS_POSITION_M = 1e8  # 100,000 km: beyond any projected map frame (UTM northings reach 1e7 m)
+MAX_ABS_TIME_S = 1e10  # Unix time in seconds reaches 1e10 in 2286
+MAX_ABS_HEADING_RAD = 2 * math.pi + 1e-6  # beyond one turn: degrees, not radians
+MAX_DT_S = 10.0  # a sample period longer than this is a time unit mistake (milliseconds as seconds)
+MAX_ABS_SPEED_MPS = 1000.0  # a given speed or acceleration beyond this is a broken value: NULL, then derived
+MAX_ABS_ACCEL_MPS2 = 1000.0
+MAX_MEDIAN_SPEED_MPS = 100.0  # 360 km/h as the median speed of a drive's moving samples: positions not in metres
 
-    Returns the kept rows, how many were dropped and the reasons.
+
+def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
+    """Check a reader's rows: kinds known, values finite and plausible, one row per (actor, frame), sizes filled.
+
+    Returns the kept rows, how many were dropped and the reasons. Raises InputError when the whole drive is in
+    a wrong unit (nothing of it can be trusted).
     """
     tracks = drive.tracks
+    where = f"{drive.source_path}: drive '{drive.drive_id}'"
     missing = [c for c in ("drive_id", "actor_id", "kind", "frame", "t_s", "x_m", "y_m") if c not in tracks.columns]
     if missing:
         raise InputError(f"{drive.source_path}: tracks lack column(s) {', '.join(missing)}.")
-    bad_kinds = sorted(set(tracks["kind"].unique().to_list()) - set(schema.OBJECT_KINDS) - {None})
+    bad_kinds = sorted(set(tracks["kind"].drop_nulls().unique().to_list()) - set(schema.OBJECT_KINDS))
     if bad_kinds:
         raise InputError(
             f"{drive.source_path}: column 'kind' has unknown value(s) {', '.join(map(repr, bad_kinds))}."
             f"{did_you_mean(str(bad_kinds[0]), schema.OBJECT_KINDS)}\n\n"
             f"Hint: kinds are the spec's evaluation_object_kind values: {', '.join(schema.OBJECT_KINDS)}."
         )
+    _check_units(tracks, drive.dt_s, where)
     reasons: list[str] = []
-    finite = pl.all_horizontal(
-        pl.col(c).is_not_null() & pl.col(c).is_finite() for c in ("t_s", "x_m", "y_m")
-    ) & pl.col("actor_id").is_not_null() & pl.col("kind").is_not_null() & pl.col("frame").is_not_null()
-    kept = tracks.filter(finite)
-    if kept.height < tracks.height:
-        reasons.append(f"{tracks.height - kept.height} row(s) with a NULL or non-finite t_s, x_m or y_m")
-    deduped = kept.unique(subset=["actor_id", "frame"], keep="first", maintain_order=True)
-    if deduped.height < kept.height:
-        reasons.append(f"{kept.height - deduped.height} duplicated (actor_id, frame) row(s), first kept")
+    # rows that cannot be placed (no actor, kind or frame) or whose time or position is not a usable number
+    keys_ok = pl.all_horizontal(pl.col(c).is_not_null() for c in ("actor_id", "kind", "frame"))
+    finite = pl.all_horizontal(pl.col(c).is_not_null() & pl.col(c).is_finite() for c in ("t_s", "x_m", "y_m"))
+    in_range = ((pl.col("x_m").abs() <= MAX_ABS_POSITION_M) & (pl.col("y_m").abs() <= MAX_ABS_POSITION_M)
+                & (pl.col("t_s").abs() <= MAX_ABS_TIME_S))
+    # each dropped row is counted under its first failing check
+    counts = tracks.select((~finite).sum().alias("finite"), (finite & ~in_range).sum().alias("range"),
+                           (finite & in_range & ~keys_ok).sum().alias("keys")).row(0, named=True)
+    if counts["finite"]:
+        reasons.append(f"{counts['finite']} row(s) with a NULL, NaN or infinite t_s, x_m or y_m dropped")
+    if counts["range"]:
+        reasons.append(f"{counts['range']} row(s) with |x_m| or |y_m| above {MAX_ABS_POSITION_M:.0e} m or |t_s| "
+                       f"above {MAX_ABS_TIME_S:.0e} s dropped")
+    if counts["keys"]:
+        reasons.append(f"{counts['keys']} row(s) with a NULL actor_id, kind or frame dropped")
+    kept = tracks.filter(keys_ok & finite & in_range)
+    for col, limit in (("speed_mps", MAX_ABS_SPEED_MPS), ("accel_mps2", MAX_ABS_ACCEL_MPS2)):
+        broken = kept[col].is_finite() & (kept[col].abs() > limit)
+        if broken.any():
+            reasons.append(f"{broken.sum()} {col} value(s) beyond +-{limit:g} set to NULL and derived from positions")
+            kept = kept.with_columns(pl.when(broken).then(None).otherwise(pl.col(col)).alias(col))
+    deduped, dup_reasons = _one_row_per_frame(kept, drive.dt_s)
+    reasons += dup_reasons
     sizes = pl.DataFrame(
         {"kind": list(schema.DEFAULT_SIZE_M), "_len": [v[0] for v in schema.DEFAULT_SIZE_M.values()],
          "_wid": [v[1] for v in schema.DEFAULT_SIZE_M.values()]})
@@ -161,6 +206,66 @@ def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
     return filled, tracks.height - deduped.height, reasons
 
 
+def _one_row_per_frame(rows: pl.DataFrame, dt_s: float) -> tuple[pl.DataFrame, list[str]]:
+    """One row per (actor_id, frame). Exact copies of a row are one row. Several samples rounding to one frame
+    (jitter, a stray extra sample): the one nearest to frame * dt_s is kept. Rows with the same actor and t_s but
+    different values contradict each other: all of them are dropped, so that frame is missing for the actor."""
+    reasons = []
+    unique = rows.unique(maintain_order=True)
+    if unique.height < rows.height:
+        reasons.append(f"{rows.height - unique.height} exact duplicate row(s) dropped")
+    conflict = pl.len().over("actor_id", "t_s") > 1
+    consistent = unique.filter(~conflict)
+    if consistent.height < unique.height:
+        example = unique.filter(conflict).sort("actor_id", "t_s").row(0, named=True)
+        reasons.append(f"{unique.height - consistent.height} row(s) giving one actor different values at the same "
+                       f"t_s dropped (e.g. actor_id '{example['actor_id']}' at t_s = {example['t_s']:g})")
+    if dt_s and math.isfinite(dt_s) and dt_s > 0:
+        off_grid = (pl.col("t_s") - pl.col("frame") * dt_s).abs()
+        nearest = consistent.sort(off_grid, "t_s").unique(subset=["actor_id", "frame"], keep="first")
+    else:
+        nearest = consistent.unique(subset=["actor_id", "frame"], keep="first")
+    if nearest.height < consistent.height:
+        reasons.append(f"{consistent.height - nearest.height} row(s) falling in a frame their actor already has "
+                       f"dropped (the row nearest to frame * dt_s kept)")
+    return nearest, reasons
+
+
+def _check_units(tracks: pl.DataFrame, dt_s: float, where: str) -> None:
+    """Reject a drive whose time, positions or headings are evidently in another unit: every match on it would
+    be wrong, silently."""
+    if dt_s and math.isfinite(dt_s) and dt_s > MAX_DT_S:
+        raise InputError(f"{where}: the sample period dt_s is {dt_s:g} s. Fix: write t_s in seconds (milliseconds "
+                         "divided by 1000) and dt_s in seconds.")
+    if "heading_rad" in tracks.columns:
+        worst = tracks.select(pl.col("heading_rad").filter(pl.col("heading_rad").is_finite()).abs().max()).item()
+        if worst is not None and worst > MAX_ABS_HEADING_RAD:
+            raise InputError(f"{where}: column 'heading_rad' reaches {worst:g}, more than one turn (2 pi). Fix: "
+                             "write headings in radians (degrees * pi / 180).")
+    ok = pl.all_horizontal(pl.col(c).is_finite() for c in ("t_s", "x_m", "y_m"))
+    steps = (
+        tracks.filter(ok & pl.col("actor_id").is_not_null() & pl.col("frame").is_not_null())
+        .sort("actor_id", "frame")
+        .select(
+            frames=pl.col("frame").diff().over("actor_id"),
+            speed=((pl.col("x_m").diff() ** 2 + pl.col("y_m").diff() ** 2).sqrt()
+                   / pl.col("t_s").diff()).over("actor_id"),
+        )
+        .filter(pl.col("frames") > 0)
+    )
+    if steps.is_empty():
+        return
+    frame_step = steps["frames"].median()
+    if frame_step >= 2:
+        raise InputError(f"{where}: consecutive samples of an actor are a median {frame_step:g} frames apart, so "
+                         f"the timestamps do not step by dt_s = {dt_s:g} s. Fix: write t_s in seconds and give the "
+                         "drive's true sample period as dt_s (drives.parquet), or leave dt_s out to derive it.")
+    moving = steps.filter(pl.col("speed").is_finite() & (pl.col("speed") > 0.5))["speed"]
+    if moving.len() and moving.median() > MAX_MEDIAN_SPEED_MPS:
+        raise InputError(f"{where}: actors move at a median {moving.median():,.0f} m/s between samples. Fix: write "
+                         "x_m and y_m in metres (millimetres divided by 1000) and t_s in seconds.")
+
+
 def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> list[tuple[DriveData, int]]:
     """Replace these drives (and their maps) in the file, in one transaction.
 
@@ -168,13 +273,15 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     """
     accepted: list[tuple[DriveData, pl.DataFrame, int, str | None]] = []
     written: list[tuple[DriveData, int]] = []
-    for drive in drives:
+    # a drive read twice into one batch (a file named twice) is written once, as a later ingest would replace it
+    for drive in {d.drive_id: d for d in drives}.values():
         try:
             if drive.tracks.is_empty() and drive.reject_reason:
                 raise InputError(drive.reject_reason)
             tracks, dropped, reasons = clean_tracks(drive)
             if tracks.is_empty():
-                raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows.")
+                raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows"
+                                 + (f" ({'; '.join(reasons)})." if reasons else "."))
         except InputError as exc:
             _reject(con, drive, str(exc))
             written.append((drive, 0))
@@ -192,8 +299,9 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
         for table in schema.DRIVE_TABLE_NAMES:
             con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-        # new rows for a drive: its earlier match status no longer holds, so the next match reruns it
+        # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
         con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
+        _drop_outputs(con, ids["drive_id"].to_list())
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         for drive in maps.values():
@@ -229,13 +337,43 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
 
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
-    """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays."""
-    for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
-        con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+    """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays.
+    One transaction: a run killed here leaves the drive as it was before, never without its drive_inputs row."""
     rows = drive.rows_read or drive.tracks.height
-    db.insert(con, "drive_inputs", pl.DataFrame([{
-        "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
-        "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
-        "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
-        "reject_reason": reason, "attribution": drive.attribution,
-    }], schema=schema.DRIVE_INPUTS.polars_schema))
+    con.execute("begin transaction")
+    try:
+        for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
+            con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
+        _drop_outputs(con, [drive.drive_id])
+        db.insert(con, "drive_inputs", pl.DataFrame([{
+            "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
+            "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
+            "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
+            "reject_reason": reason, "attribution": drive.attribution,
+        }], schema=schema.DRIVE_INPUTS.polars_schema))
+        con.execute("commit")
+    except BaseException:
+        con.execute("rollback")
+        raise
+
+
+def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
+    """A drive that is re-ingested or now rejected keeps no matches from an earlier run of its old data (drives
+    and matches would report them until the next match); the coverage histograms are recounted without them."""
+    con.register("_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String}))
+    try:
+        if not con.execute("select count(*) from matches where drive_id in (select drive_id from _stale)"
+                           ).fetchall()[0][0]:
+            return
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+        for table in ("match_phases", "kpis", "coverage_samples"):
+            if table in have:
+                con.execute(f"delete from {table} where match_id in (select match_id from matches "
+                            "where drive_id in (select drive_id from _stale))")
+        for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
+            if table in have:
+                con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
+        con.execute("delete from coverage")
+        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+    finally:
+        con.unregister("_stale")

@@ -24,6 +24,7 @@ from logiq_sql.paths import data_dir
 from logiq_sql.schema import OBJECT_KINDS, VEHICLE_KINDS
 
 PARAM_TYPES = (*units.DIMENSIONS, "kinds")
+_PARAM_KEYS = {"type", "default", "description"}
 _TOP_KEYS = {
     "name", "description", "spec", "version", "abstract", "extends", "actors", "params", "phases",
     "match", "kpi_queries", "kpis", "coverage", "junctions",
@@ -213,6 +214,10 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
 
     for pname, spec in raw.get("params", {}).items():
         where = f"{path} [params.{pname}]"
+        unknown = sorted(set(spec) - _PARAM_KEYS)  # a misspelt key would silently leave the default unset
+        if unknown:
+            raise ScenarioError(f"{where}: unknown key '{unknown[0]}'.{did_you_mean(unknown[0], sorted(_PARAM_KEYS))}"
+                                f"\n\nHint: a parameter has {', '.join(sorted(_PARAM_KEYS))}.")
         type_ = spec.get("type")
         if type_ not in PARAM_TYPES:
             raise ScenarioError(f"{where}: type {type_!r} is not one of {', '.join(PARAM_TYPES)}.")

@@ -6,6 +6,7 @@ import gzip
 import shutil
 from pathlib import Path
 
+import duckdb
 import polars as pl
 
 from logiq_sql import ingest, match
@@ -52,3 +53,48 @@ def test_reingesting_a_drive_replaces_it(tmp_path):
     ingest("commonroad", [good], db)
     drives = match(db, scenarios=["follower_vehicle"], ego="671").drives
     assert drives.height == 1 and drives["rows_read"].to_list() == [5538]
+
+
+def test_every_real_drive_is_accounted_for_and_the_counts_add_up(tmp_path):
+    from logiq_sql.ingestion import expand
+    from logiq_sql.scenario import list_scenarios
+
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "USA_cut_T-1.xml.gz").write_bytes((DATA / "commonroad_ngsim/scenarios_2018b/"
+                                                  "USA_US101-22_1_T-1.xml.gz").read_bytes()[:3000])
+    inputs = [("commonroad", [DATA / "commonroad_ngsim", broken]),
+              ("scenarionet", [DATA / "nuscenes_mini_scenarionet"]), ("av2", [DATA / "av2"])]
+    db = tmp_path / "x.duckdb"
+    files = 0
+    for fmt, paths in inputs:
+        files += len(expand(fmt, paths))
+        ingest(fmt, paths, db)
+    result = match(db, ego="every:5")
+    drives = result.drives
+    assert files == drives.height == 92 + 1 + 4 + 5  # NGSIM scenes, the broken file, nuScenes scenes, AV2 logs
+
+    con = duckdb.connect(str(db), read_only=True)
+    kept = con.sql("select drive_id, count(*) as kept from tracks group by drive_id").pl()
+    rows = drives.join(kept, on="drive_id", how="left").with_columns(pl.col("kept").fill_null(0))
+    assert (rows["rows_read"] == rows["kept"] + rows["rows_rejected"]).all()
+    assert rows["rows_read"].sum() > 250_000
+    (bad,) = rows.filter(pl.col("status") == "rejected").iter_rows(named=True)
+    assert bad["drive_id"] == "USA_cut_T-1" and str(broken / "USA_cut_T-1.xml.gz") in bad["reject_reason"]
+    assert rows.filter(pl.col("rows_rejected") > 0)["reject_reason"].null_count() == 0  # a reason for every loss
+
+    scenarios = sorted(s.name for s in list_scenarios())
+    per = con.sql("select * from drive_scenarios").pl()
+    assert per.height == drives.height * len(scenarios)
+    assert set(per["status"]) <= {"matched", "no_match", "no_ego", "rejected"}
+    assert per.filter(pl.col("drive_id") == "USA_cut_T-1")["status"].to_list() == ["rejected"] * len(scenarios)
+    counted = per.group_by("scenario").agg(pl.col("matches").sum()).sort("scenario")
+    stored = con.sql("select scenario, count(*) as matches from matches group by scenario").pl()
+    runs = con.sql("select scenario, matches from match_runs").pl()
+    for s in scenarios:
+        n = counted.filter(pl.col("scenario") == s)["matches"].item()
+        assert n == (stored.filter(pl.col("scenario") == s)["matches"].sum()) == runs.filter(
+            pl.col("scenario") == s)["matches"].item()
+    assert drives["matches"].sum() == result.matches.height > 0
+    assert (per.filter(pl.col("status") == "matched")["matches"] > 0).all()
+    assert (per.filter(pl.col("status") != "matched")["matches"] == 0).all()

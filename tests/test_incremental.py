@@ -112,8 +112,19 @@ def test_a_changed_parameter_is_recorded_with_the_matches_it_produced(first_run)
 
 
 def test_reingesting_a_drive_makes_the_next_run_match_it_again(first_run):
+    drive = FIRST[0].name.split(".")[0]
+
+    def rows_of_drive() -> dict[str, int]:
+        with duckdb.connect(str(first_run), read_only=True) as con:
+            return {t: con.execute(f"select count(*) from {t} where drive_id like $d", {"d": drive + "%"}
+                                   ).fetchall()[0][0] for t in ("matches", "drive_scenarios", "relations")}
+
+    assert rows_of_drive()["matches"] > 0
     ingest("commonroad", [FIRST[0]], first_run)
+    # its old matches and relations went with its old rows: nothing stale until the next match
+    assert rows_of_drive() == {"matches": 0, "drive_scenarios": 0, "relations": 0}
     result = match(first_run, scenarios=SCENARIOS)
+    assert rows_of_drive()["matches"] > 0
     assert result.up_to_date == {"follower_vehicle": 1, "sut_cut_out": 1}
 
 

@@ -12,6 +12,7 @@ Required track columns: drive_id, actor_id, kind, t_s, x_m, y_m. Optional: is_eg
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -45,13 +46,11 @@ def _check_columns(frame: pl.DataFrame, table: schema.Table, required: tuple[str
             out.append(pl.lit(None, dtype=c.dtype).alias(c.name))
             continue
         try:
-            out.append(pl.col(c.name).cast(c.dtype, strict=True))
-        except Exception:  # pragma: no cover - cast errors surface at select time
-            raise
-    try:
-        return frame.select(out)
-    except pl.exceptions.InvalidOperationError as exc:
-        raise InputError(f"{path}: a column has the wrong type ({exc}).\n\nHint: see docs/tables.md.") from None
+            out.append(frame.select(pl.col(c.name).cast(c.dtype, strict=True)).to_series())
+        except pl.exceptions.PolarsError:
+            raise InputError(f"{path}: column '{c.name}' is {frame.schema[c.name]}, which does not convert to "
+                             f"{c.dtype}.\n\nHint: write {c.name} as {c.dtype}; see docs/tables.md.") from None
+    return frame.select(out)
 
 
 DRIVES_PER_CHUNK = 200  # drives read from the file at a time: memory stays bounded on large files
@@ -93,7 +92,25 @@ def read_parquet(path: str | Path) -> Iterator[DriveData]:
 
     lazy = pl.scan_parquet(tracks_file).with_columns(pl.col("drive_id").cast(pl.String),
                                                      pl.col("actor_id").cast(pl.String))
-    drive_ids = lazy.select(pl.col("drive_id").unique(maintain_order=True)).collect()["drive_id"].to_list()
+    try:
+        ids = lazy.select(pl.col("drive_id")).collect()["drive_id"]
+    except pl.exceptions.PolarsError as exc:
+        raise InputError(f"{tracks_file}: not a readable Parquet file ({type(exc).__name__}: {exc}).") from None
+    if ids.len() == 0:
+        raise InputError(f"{tracks_file}: no rows. Fix: write the drive's track rows, or leave the file out.")
+    if ids.null_count():
+        # rows of no drive cannot be accounted to one: the file is refused rather than those rows lost
+        raise InputError(f"{tracks_file}: {ids.null_count()} row(s) have a NULL drive_id. Fix: give every row the "
+                         "drive it belongs to.")
+    drive_ids = ids.unique(maintain_order=True).to_list()
+    # a drive that drives.parquet lists but tracks.parquet has no row of is rejected, not forgotten
+    for drive_id in sorted(set(drives_meta) - set(drive_ids)):
+        meta = drives_meta[drive_id]
+        yield DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file),
+                        dt_s=meta.get("dt_s") or math.nan, tracks=pl.DataFrame(), map_id=meta.get("map_id"),
+                        reject_reason=f"{tracks_file}: drive '{drive_id}' is listed in drives.parquet but has no "
+                                      "track rows. Fix: add its rows to tracks.parquet or remove it from "
+                                      "drives.parquet.")
     for start in range(0, len(drive_ids), DRIVES_PER_CHUNK):
         chunk = lazy.filter(pl.col("drive_id").is_in(drive_ids[start:start + DRIVES_PER_CHUNK])).collect()
         for (drive_id,), rows in chunk.group_by("drive_id", maintain_order=True):
@@ -102,19 +119,26 @@ def read_parquet(path: str | Path) -> Iterator[DriveData]:
 
 def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.DataFrame], tracks_file: Path) -> DriveData:
     dt = meta.get("dt_s")
+    if dt is not None and not (math.isfinite(dt) and dt > 0):
+        return DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file), dt_s=math.nan,
+                         tracks=pl.DataFrame(), map_id=meta.get("map_id"), rows_read=rows.height,
+                         reject_reason=f"{tracks_file.parent / 'drives.parquet'}: drive '{drive_id}' has dt_s = "
+                                       f"{dt}. Fix: write the sample period in seconds (> 0), or leave it NULL to "
+                                       "derive it from t_s.")
     if not dt:
         steps = rows.select(pl.col("t_s").filter(pl.col("t_s").is_finite()).unique().sort().diff().drop_nulls())
         dt = float(steps["t_s"].median()) if steps.height else None
     dt = dt if dt and dt > 0 else 0.1
     if "frame" not in rows.columns:
-        rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64))
+        # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
+        rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64, strict=False))
     if "is_ego" not in rows.columns:
         rows = rows.with_columns(is_ego=pl.lit(False))
     tracks = _check_columns(rows, schema.TRACKS, REQUIRED, tracks_file)
     map_id = meta.get("map_id")
     drive = DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file), dt_s=dt,
                       tracks=tracks, map_id=map_id, rows_read=rows.height, attribution=meta.get("attribution"))
-    egos = tracks.filter(pl.col("is_ego"))["actor_id"].unique().sort().to_list()
+    egos = tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())["actor_id"].unique().sort().to_list()
     if len(egos) > 1:
         drive.tracks = tracks.clear()
         drive.reject_reason = (f"{tracks_file}: drive '{drive_id}' has {len(egos)} actors with is_ego = true "

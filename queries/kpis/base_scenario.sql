@@ -7,7 +7,10 @@ select
     max(e.accel_mps2) as ego_max_lon_acceleration_mpsps,
     min(e.accel_mps2) as ego_min_lon_acceleration_mpsps,
     min(e.speed_mps) * $mph_per_mps as ego_min_speed_mph,
-    avg(e.speed_mps) * $mph_per_mps as ego_avg_speed_mph,
+    -- mean of speeds in whole micrometres per second: an integer sum does not depend on the order
+    -- in which threads add the rows, so the KPI is the same to the last bit on every run
+    cast(sum(cast(round(e.speed_mps * 1e6) as decimal(38, 0))) as double)
+        / nullif(count(e.speed_mps), 0) / 1e6 * $mph_per_mps as ego_avg_speed_mph,
     max(e.speed_mps) * $mph_per_mps as ego_max_speed_mph,
     max(m.end_s) - max(m.start_s) as interval_duration_s,
     max(case when e.frame = m.start_frame then e.speed_mps end) * $mph_per_mps as ego_speed_at_start_mph

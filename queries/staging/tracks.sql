@@ -8,7 +8,7 @@
 --                v = (p[i+1] - p[i-1]) / (t[i+1] - t[i-1])
 --   heading_rad  direction of that velocity when the actor moves faster than 0.5 m/s; while slower, the
 --                last moving heading (else the first one, else 0): a standing car keeps its heading
---   speed_mps    velocity projected on the heading (negative when reversing)
+--   speed_mps    velocity projected on the heading (negative when reversing); NULL for a one-sample track
 --   accel_mps2   central difference of speed, then a centred 5-sample moving average (the smoothing)
 with
 
@@ -66,10 +66,8 @@ headed as (
 sped as (
     select
         *,
-        coalesce(
-            speed_mps,
-            coalesce(vx_mps, 0.0) * cos(heading_filled_rad) + coalesce(vy_mps, 0.0) * sin(heading_filled_rad)
-        ) as speed_filled_mps
+        -- NULL for a track of one sample: its speed is undefined, not 0
+        coalesce(speed_mps, vx_mps * cos(heading_filled_rad) + vy_mps * sin(heading_filled_rad)) as speed_filled_mps
     from headed
 ),
 
