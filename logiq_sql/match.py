@@ -35,6 +35,9 @@ from logiq_sql.timing import stage
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
+# drives are matched in batches of about this many track rows, each stored in its own transaction: memory stays
+# bounded whatever the file holds (at 50 M rows one pass over every drive ran out of DuckDB's 4 GB)
+MATCH_BATCH_ROWS = 2_000_000
 RELATION_STEPS = (
     ("lane_neighbours", "relations/lane_neighbours.sql"),
     ("lane_line", "relations/lane_line.sql"),
@@ -262,7 +265,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           overrides: dict[str, str] | None = None, drives: list[str] | None = None,
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
-          spark_master: str | None = None, spark_tables: str | Path | None = None) -> MatchResult:
+          spark_master: str | None = None, spark_tables: str | Path | None = None,
+          batch_rows: int = MATCH_BATCH_ROWS) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -280,6 +284,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             results are stored in ``db_path`` the same way whatever the engine.
         spark_master: Spark master URL for ``engine="spark"`` (default: $SPARK_MASTER, else ``local[2]``).
         spark_tables: folder the canonical tables are written to as Parquet for Spark (default: a temporary one).
+        batch_rows: match the drives in batches of about this many track rows (a drive is never split); each
+            batch is stored in its own transaction, so a killed run keeps the batches it finished.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {})
@@ -302,12 +308,14 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             up_to_date[s.name] = run_drives.height - todo.height
             if todo.height:
                 groups.setdefault((_lane_tolerance(s), tuple(todo["drive_id"])), []).append(s)
-        for step, ((tolerance, ids), group) in enumerate(sorted(groups.items()), 1):
-            todo = pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String})
+        work = [(tolerance, batch, group) for (tolerance, ids), group in sorted(groups.items())
+                for batch in _batches(con, ids, batch_rows)]
+        for step, (tolerance, batch, group) in enumerate(work, 1):
+            todo = pl.DataFrame({"drive_id": batch}, schema={"drive_id": pl.String})
             con.register("run_drives", todo)
             if runner.name != "duckdb":  # the DuckDB engine reads the registered frame directly
                 runner.register("run_drives", todo)
-            say(f"[{step}/{len(groups)}] {len(ids)} drive(s): {', '.join(s.name for s in group)}")
+            say(f"[{step}/{len(work)}] {len(batch)} drive(s): {', '.join(s.name for s in group)}")
             for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
                 con.execute(f"drop table if exists temp.main.{table}")
             prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
@@ -340,6 +348,23 @@ def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.
                                 f"{did_you_mean(missing[0], known['drive_id'].to_list())}")
         known = known.filter(pl.col("drive_id").is_in(drives))
     return known
+
+
+def _batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_rows: int) -> list[list[str]]:
+    """``ids`` (sorted) cut into consecutive batches of at most ``batch_rows`` track rows, or one drive each."""
+    con.register("_batch_ids", pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String}))
+    sizes = con.sql("select drive_id, rows_read - rows_rejected as n from drive_inputs "
+                    "where drive_id in (select drive_id from _batch_ids) order by drive_id").pl()
+    con.unregister("_batch_ids")
+    batches: list[list[str]] = []
+    filled = 0
+    for drive_id, n in sizes.iter_rows():
+        if not batches or filled + n > batch_rows:
+            batches.append([])
+            filled = 0
+        batches[-1].append(drive_id)
+        filled += n
+    return batches
 
 
 def _drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.DataFrame, ego: str,
@@ -409,11 +434,18 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
             db.insert(con, "coverage_buckets", buckets)
             db.insert(con, "drive_scenarios",
                       _drive_status(con, run_drives, matches, egos, s).with_columns(run_id=pl.lit(run_id)))
+            # one row per run and scenario: a later batch of the same run adds its drives and matches
+            (before,) = con.execute(
+                "select min(started_at), coalesce(sum(drives), 0), coalesce(sum(matches), 0) from match_runs "
+                "where run_id = $r and scenario = $s", {"r": run_id, "s": s.name}).fetchall()
+            con.execute("delete from match_runs where run_id = $r and scenario = $s", {"r": run_id, "s": s.name})
             db.insert(con, "match_runs", pl.DataFrame([{
-                "run_id": run_id, "started_at": started, "scenario": s.name, "scenario_version": s.version,
-                "params_hash": s.params_hash(), "params_json": json.dumps(s.bindings(), sort_keys=True),
+                "run_id": run_id, "started_at": before[0] or started, "scenario": s.name,
+                "scenario_version": s.version, "params_hash": s.params_hash(),
+                "params_json": json.dumps(s.bindings(), sort_keys=True),
                 "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
-                "drives": run_drives.height, "matches": matches.height, "relation_range_m": range_m,
+                "drives": before[1] + run_drives.height, "matches": before[2] + matches.height,
+                "relation_range_m": range_m,
             }], schema=db.MATCH_RUNS.polars_schema))
         with stage("coverage"):
             con.execute("delete from coverage")
