@@ -8,8 +8,8 @@ Every step is a query file in ``queries/`` run over the whole table set, with bo
 
 A run is incremental: a (drive, scenario) pair whose latest run had the same params_hash (scenario version and
 every bound value), ego mode and relation range is skipped (``force`` reruns it). The rest is matched and
-replaces that scenario's outputs on those drives in one transaction per group, so an interrupted run leaves the
-previous results intact.
+replaces that scenario's outputs on those drives in one transaction per batch of drives (MATCH_BATCH_ROWS), so
+memory stays bounded and an interrupted run keeps the batches it finished and the previous results of the rest.
 """
 
 from __future__ import annotations
