@@ -21,7 +21,7 @@ from logiq_sql.localise import locate
 from logiq_sql.readers.av2 import log_folders
 from logiq_sql.readers.base import DriveData
 from logiq_sql.readers.sumo import run_folders
-from logiq_sql.sql import query_text
+from logiq_sql.sql import query_text, recount_coverage
 from logiq_sql.timing import stage
 
 FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2")
@@ -373,7 +373,6 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
         for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
             if table in have:
                 con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
-        con.execute("delete from coverage")
-        con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+        recount_coverage(con)
     finally:
         con.unregister("_stale")

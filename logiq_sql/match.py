@@ -29,7 +29,7 @@ from logiq_sql.encroachment import encroachments
 from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
-from logiq_sql.sql import query_text, render_steps
+from logiq_sql.sql import query_text, recount_coverage, render_steps
 from logiq_sql.timing import stage
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
@@ -448,8 +448,7 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
                 "relation_range_m": range_m,
             }], schema=db.MATCH_RUNS.polars_schema))
         with stage("coverage"):
-            con.execute("delete from coverage")
-            con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+            recount_coverage(con)
         con.execute("commit")
     except BaseException:
         con.execute("rollback")

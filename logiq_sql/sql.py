@@ -60,6 +60,12 @@ def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, value
     con.execute(f"create or replace temp table {table} as {query_text(relative)}", bind(relative, values))
 
 
+def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:
+    """Rebuild the coverage histograms from every stored coverage sample (after matches were added or removed)."""
+    con.execute("delete from coverage")
+    con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+
+
 def _literal(value: object) -> str:
     if isinstance(value, str):
         return "'" + value.replace("'", "''") + "'"
