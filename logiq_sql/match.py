@@ -10,6 +10,8 @@ A run is incremental: a (drive, scenario) pair whose latest run had the same par
 every bound value), ego mode and relation range is skipped (``force`` reruns it). The rest is matched and
 replaces that scenario's outputs on those drives in one transaction per batch of drives (MATCH_BATCH_ROWS), so
 memory stays bounded and an interrupted run keeps the batches it finished and the previous results of the rest.
+While a batch runs, its queries read only its drives' rows of tracks, track_lanes and traffic_light_states
+(``Engine.select_drives``), so a batch costs what its drives hold, whatever the file holds.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import polars as pl
 from logiq_sql import db, units
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.encroachment import encroachments
-from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine
+from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine, stored_schema
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
 from logiq_sql.sql import query_text, recount_coverage, render_steps
@@ -318,6 +320,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             say(f"[{step}/{len(work)}] {len(batch)} drive(s): {', '.join(s.name for s in group)}")
             for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
                 con.execute(f"drop table if exists temp.main.{table}")
+            runner.select_drives()
             prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
             say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
@@ -326,6 +329,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
                 results.append(_run_scenario(runner, s, run_values(s, ego_values, range_m)))
                 say(f"  {s.name}: {results[-1][0].height} matches")
             runner.persist(tuple(PERSISTED))
+            runner.release_drives()
             _store(con, run_id, ego, range_m, todo, results)
         con.register("run_drives", run_drives)
         result = _result(con, run_drives, [s.name for s in chosen])
@@ -409,8 +413,7 @@ def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     con.execute("begin transaction")
     try:
-        # the run's temp table shadows the stored one of the same name: name the file's catalog
-        stored = '"' + con.execute("select current_database()").fetchall()[0][0].replace('"', '""') + '".main'
+        stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
         made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
         for table in (t for t in PERSISTED if t in made):
             con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")

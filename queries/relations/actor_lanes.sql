@@ -1,6 +1,6 @@
 -- relations: actor_lanes
--- grain: one row per (drive_id, actor_id, frame) that lies in a lane: its best lane
--- reads: track_lanes (every lane within 3 m of each track row, from shapely at ingest)
+-- grain: one row per (drive_id, actor_id, frame) of the run's drives that lies in a lane: its best lane
+-- reads: track_lanes (every lane within 3 m of each track row, from shapely at ingest), run_drives
 -- params: $lane_calculation_tolerance_length_m
 --
 -- An actor is in a lane when its centre is within lane_calculation_tolerance_length of the lane polygon
@@ -20,7 +20,8 @@ from (
             order by dist_m, abs(heading_diff_rad), lane_id
         ) as rank_in_frame
     from track_lanes
-    where dist_m <= $lane_calculation_tolerance_length_m
+    where drive_id in (select drive_id from run_drives)
+        and dist_m <= $lane_calculation_tolerance_length_m
         and abs(heading_diff_rad) < pi() / 2
 ) as ranked
 where rank_in_frame = 1

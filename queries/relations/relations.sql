@@ -58,14 +58,20 @@ pairs as (
         (a.y_m - e.y_m) * cos(e.heading_rad) - (a.x_m - e.x_m) * sin(e.heading_rad) as dy_m,
         atan2(sin(a.heading_rad - e.heading_rad), cos(a.heading_rad - e.heading_rad)) as rel_heading_rad
     from ego as e
-    inner join tracks as a
-        on e.drive_id = a.drive_id and e.frame = a.frame and e.actor_id <> a.actor_id
-    where (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m)
-        <= case
-            when a.kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
-                then $relation_range_m * $relation_range_m
-            else $object_relation_range_m * $object_relation_range_m
-        end
+    inner join (
+        select
+            *,
+            case
+                when kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
+                    then $relation_range_m * $relation_range_m
+                else $object_relation_range_m * $object_relation_range_m
+            end as range_sq_m2
+        from tracks
+    ) as a
+        on e.drive_id = a.drive_id
+        and e.frame = a.frame
+        and e.actor_id <> a.actor_id
+        and (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m) <= a.range_sq_m2
 ),
 
 rotated as (
@@ -106,22 +112,45 @@ gaps as (
     from rotated
 ),
 
+corner_offsets as (
+    -- how far each corner lies outside the other box, along that box's length and width
+    select
+        *,
+        greatest(abs(a1x) - ego_length_m / 2, 0) as a1_out_x,
+        greatest(abs(a1y) - ego_width_m / 2, 0) as a1_out_y,
+        greatest(abs(a2x) - ego_length_m / 2, 0) as a2_out_x,
+        greatest(abs(a2y) - ego_width_m / 2, 0) as a2_out_y,
+        greatest(abs(a3x) - ego_length_m / 2, 0) as a3_out_x,
+        greatest(abs(a3y) - ego_width_m / 2, 0) as a3_out_y,
+        greatest(abs(a4x) - ego_length_m / 2, 0) as a4_out_x,
+        greatest(abs(a4y) - ego_width_m / 2, 0) as a4_out_y,
+        greatest(abs(e1u) - actor_length_m / 2, 0) as e1_out_x,
+        greatest(abs(e1v) - actor_width_m / 2, 0) as e1_out_y,
+        greatest(abs(e2u) - actor_length_m / 2, 0) as e2_out_x,
+        greatest(abs(e2v) - actor_width_m / 2, 0) as e2_out_y,
+        greatest(abs(e3u) - actor_length_m / 2, 0) as e3_out_x,
+        greatest(abs(e3v) - actor_width_m / 2, 0) as e3_out_y,
+        greatest(abs(e4u) - actor_length_m / 2, 0) as e4_out_x,
+        greatest(abs(e4v) - actor_width_m / 2, 0) as e4_out_y
+    from gaps
+),
+
 measured as (
     select
         *,
         lon_gap_raw_m <= 0 and lat_gap_raw_m <= 0 and u_gap_raw_m <= 0 and v_gap_raw_m <= 0 as boxes_overlap,
         greatest(lon_gap_raw_m, 0) as lon_gap_m,
         greatest(lat_gap_raw_m, 0) as lat_gap_m,
-        least(
-            sqrt(power(greatest(abs(a1x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a1y) - ego_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(a2x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a2y) - ego_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(a3x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a3y) - ego_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(a4x) - ego_length_m / 2, 0), 2) + power(greatest(abs(a4y) - ego_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(e1u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e1v) - actor_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(e2u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e2v) - actor_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(e3u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e3v) - actor_width_m / 2, 0), 2)),
-            sqrt(power(greatest(abs(e4u) - actor_length_m / 2, 0), 2) + power(greatest(abs(e4v) - actor_width_m / 2, 0), 2))
-        ) as corner_distance_m,
+        sqrt(least(
+            a1_out_x * a1_out_x + a1_out_y * a1_out_y,
+            a2_out_x * a2_out_x + a2_out_y * a2_out_y,
+            a3_out_x * a3_out_x + a3_out_y * a3_out_y,
+            a4_out_x * a4_out_x + a4_out_y * a4_out_y,
+            e1_out_x * e1_out_x + e1_out_y * e1_out_y,
+            e2_out_x * e2_out_x + e2_out_y * e2_out_y,
+            e3_out_x * e3_out_x + e3_out_y * e3_out_y,
+            e4_out_x * e4_out_x + e4_out_y * e4_out_y
+        )) as corner_distance_m,
         case
             when dx_m >= 0 then ego_speed_mps - actor_speed_mps * c
             else actor_speed_mps * c - ego_speed_mps
@@ -130,7 +159,7 @@ measured as (
             when dx_m >= 0 then ego_accel_mps2 - actor_accel_mps2 * c
             else actor_accel_mps2 * c - ego_accel_mps2
         end as closing_accel_mps2
-    from gaps
+    from corner_offsets
 ),
 
 lane_relation as (
