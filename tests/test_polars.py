@@ -152,3 +152,29 @@ def test_cli_engine_polars_is_a_clear_error(drives, capsys):
     err = capsys.readouterr().err
     assert "--engine polars: queries/relations/ego_lanes.sql cannot run on Polars SQL" in err
     assert "--engine duckdb or spark" in err
+
+
+def test_select_drives_narrows_the_per_drive_tables_to_the_batch(drives):
+    """A match batch's queries read only its drives' rows (Engine.select_drives), on DuckDB and on Polars, and
+    release_drives gives the whole tables back."""
+    real, _ = drives
+    con = db.connect(real)
+    try:
+        everything = {t: con.sql(f"select drive_id, count(*) as n from {t} group by drive_id order by drive_id").pl()
+                      for t in ("tracks", "track_lanes")}
+        assert everything["tracks"].height == 2
+        batch = pl.DataFrame({"drive_id": ["scene-0103"]})
+        con.register("run_drives", batch)
+        polars = PolarsEngine(con)
+        polars.register("run_drives", batch)  # DuckDB reads the frame registered on its connection
+        for engine in (DuckEngine(con), polars):
+            engine.select_drives()
+            for table, counts in everything.items():
+                got = engine.frame(f"select drive_id, count(*) as n from {table} group by drive_id")
+                assert got.rows() == counts.filter(pl.col("drive_id") == "scene-0103").rows(), (engine.name, table)
+            engine.release_drives()
+            for table, counts in everything.items():
+                got = engine.frame(f"select drive_id, count(*) as n from {table} group by drive_id order by drive_id")
+                assert got.rows() == counts.rows(), (engine.name, table)
+    finally:
+        con.close()

@@ -134,8 +134,9 @@ def test_spark_matches_duckdb_on_real_drives(spark, real):
     six_m = {"max_distance_from_cyclist": "6m"}
     _both(duck, spark_db, scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4",
           drives=["scene-0103"])
+    # one drive per batch: each batch's queries read only its drive's rows (Engine.select_drives)
     _both(duck, spark_db, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"],
-          overrides=six_m, ego="every:4")
+          overrides=six_m, ego="every:4", batch_rows=1)
     counts = _read(duck, "matches").group_by("scenario").len().sort("scenario").rows()
     assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
     _assert_same(duck, spark_db)
