@@ -60,6 +60,7 @@ test: venv
 TIER ?= S
 bench: venv
 	$(BIN)/python -m benchmarks.tiers --tier $(TIER) $(BENCH_ARGS)
+	$(BIN)/python -m benchmarks.components --tier $(TIER)
 
 docs: venv
 	$(BIN)/python -c "from logiq_sql.db import docs_markdown; print(docs_markdown())" > docs/tables.md

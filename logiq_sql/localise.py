@@ -8,12 +8,15 @@ with their own ``lane_calculation_tolerance_length`` in SQL (``queries/relations
 Speed: candidate pairs come from the lanes' bounding boxes grown by the range (envelope tests only), then
 point-in-polygon tests (``contains_xy``, prepared) against each lane grown by a little more than the range and
 against the lane itself; ``distance`` is computed once, only for the points outside a lane but within reach.
-Chunks of points run on a thread pool (shapely and Polars release the GIL).
+Chunks of points run on a thread pool (shapely and Polars release the GIL). GEOS geometries, prepared ones above
+all, are not safe to share between threads (they build caches on first use: libgeos/geos#825; a shared index
+corrupted the heap once in a 50 M-row ingest), so every worker thread queries its own copies of the lanes.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -27,32 +30,47 @@ CHUNK_POINTS = 250_000  # bounds the memory of one shapely query
 WORKERS = min(os.cpu_count() or 1, 4)  # chunks localised at once
 
 
+class _Geometry:
+    """One thread's lanes: polygons and their reach prepared (fast point-in-polygon tests), the grown boxes in an
+    STRtree, the centre lines."""
+
+    def __init__(self, wkb: dict[str, np.ndarray]):
+        self.polygons = shapely.from_wkb(wkb["polygons"])
+        self.reach = shapely.from_wkb(wkb["reach"])
+        self.boxes = shapely.STRtree(shapely.from_wkb(wkb["boxes"]))
+        self.lines = shapely.from_wkb(wkb["lines"])
+        shapely.prepare(self.polygons)
+        shapely.prepare(self.reach)
+
+
 class LaneIndex:
-    """The lanes of one map: prepared polygons and the centre-line vertices for direction look-ups."""
+    """The lanes of one map: their geometries (each thread prepares its own) and the centre-line vertices for
+    direction look-ups."""
 
     def __init__(self, lanes: pl.DataFrame):
         self.lane_ids = lanes["lane_id"]
-        self.polygons = shapely.from_wkt(lanes["polygon_wkt"].to_numpy())
-        self.lines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
+        polygons = shapely.from_wkt(lanes["polygon_wkt"].to_numpy())
+        lines = shapely.from_wkt(lanes["centerline_wkt"].to_numpy())
         r = schema.LOCALISATION_RANGE_M
-        b = shapely.bounds(self.polygons)
+        b = shapely.bounds(polygons)
         boxes = shapely.box(b[:, 0] - r, b[:, 1] - r, b[:, 2] + r, b[:, 3] + r)
-        self.boxes = shapely.STRtree(boxes)
         # every point within r of a lane lies inside its buffer by r + 0.1 m: the buffer's arcs are chords that
         # stay within cos(pi / 32) (0.5 %) of the radius, so this is an exact pre-filter for the distance test;
         # an invalid polygon (possible in canonical Parquet) may buffer to less than itself: its box is used
-        self.reach = np.where(shapely.is_valid(self.polygons), shapely.buffer(self.polygons, r + 0.1), boxes)
-        shapely.prepare(self.polygons)  # prepared polygons make the point-in-polygon tests fast
-        shapely.prepare(self.reach)
-        coords, owner = shapely.get_coordinates(self.lines, return_index=True)
+        reach = np.where(shapely.is_valid(polygons), shapely.buffer(polygons, r + 0.1), boxes)
+        # the geometries as WKB, from which each thread makes its own (_Geometry)
+        self.wkb = {name: shapely.to_wkb(g) for name, g in
+                    (("polygons", polygons), ("reach", reach), ("boxes", boxes), ("lines", lines))}
+        self.local = threading.local()
+        coords, owner = shapely.get_coordinates(lines, return_index=True)
         cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
         starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
         arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))  # restarts on each line
         self.span = float(arc.max() if len(arc) else 0.0) + 1.0
         self.key = arc + owner * self.span  # sorted: lane by lane, arc length within
         self.coords, self.owner = coords, owner
-        self.first = np.full(len(self.lines), -1)
-        self.last = np.full(len(self.lines), -1)
+        self.first = np.full(len(polygons), -1)
+        self.last = np.full(len(polygons), -1)
         self.first[owner[starts]] = starts
         self.last[owner[np.r_[starts[1:] - 1, len(coords) - 1]]] = np.r_[starts[1:] - 1, len(coords) - 1]
 
@@ -64,18 +82,26 @@ class LaneIndex:
         d = self.coords[j] - self.coords[i]
         return np.arctan2(d[:, 1], d[:, 0])
 
+    def geometry(self) -> _Geometry:
+        """This thread's own copies of the lanes."""
+        mine = getattr(self.local, "geometry", None)
+        if mine is None:
+            mine = self.local.geometry = _Geometry(self.wkb)
+        return mine
+
     def locate(self, x: np.ndarray, y: np.ndarray, heading: np.ndarray):
         """(row index, lane index, distance to polygon, heading minus lane direction) for every pair in range."""
+        g = self.geometry()
         points = shapely.points(x, y)
-        row, lane = self.boxes.query(points)  # the point lies in the lane's box grown by the range
-        reach = shapely.contains_xy(self.reach[lane], x[row], y[row])
+        row, lane = g.boxes.query(points)  # the point lies in the lane's box grown by the range
+        reach = shapely.contains_xy(g.reach[lane], x[row], y[row])
         row, lane = row[reach], lane[reach]
-        inside = shapely.contains_xy(self.polygons[lane], x[row], y[row])
+        inside = shapely.contains_xy(g.polygons[lane], x[row], y[row])
         dist = np.zeros(len(row))
-        dist[~inside] = shapely.distance(self.polygons[lane[~inside]], points[row[~inside]])
+        dist[~inside] = shapely.distance(g.polygons[lane[~inside]], points[row[~inside]])
         near = dist <= schema.LOCALISATION_RANGE_M
         row, lane, dist = row[near], lane[near], dist[near]
-        s = shapely.line_locate_point(self.lines[lane], points[row])
+        s = shapely.line_locate_point(g.lines[lane], points[row])
         lane_heading = self.direction(lane, s)
         diff = np.arctan2(np.sin(heading[row] - lane_heading), np.cos(heading[row] - lane_heading))
         return row, lane, dist, diff

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import duckdb
 import polars as pl
 import pytest
 
@@ -39,3 +40,26 @@ def test_baseline_finds_the_same_matches(matched, scenario):
                 for r in theirs[scenario].itertuples()}
     assert sql, "the sample must have matches for the comparison to mean something"
     assert per_pair == sql
+
+
+def test_component_parts_run_and_the_pair_join_counts_every_pair(tmp_path):
+    """benchmarks/components.py: every part runs on a tracks file, and its pair join counts what a brute-force
+    cross join per frame counts (every 10th actor of a drive by id, every other actor within 200 m)."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import components
+
+    db = tmp_path / "c.duckdb"
+    ingest("commonroad", sorted(NGSIM.glob("USA_US101-*"))[:2], db)
+    tracks = tmp_path / "tracks.parquet"
+    with duckdb.connect(str(db), read_only=True) as con:
+        con.execute(f"copy (select * from tracks) to '{tracks}' (format parquet)")
+        counted = con.execute(components.PARTS["pair join"], {"path": str(tracks)}).fetchone()[0]
+    rows = pl.read_parquet(tracks).select("drive_id", "actor_id", "frame", "x_m", "y_m")
+    tenth = (rows.select("drive_id", "actor_id").unique().sort("drive_id", "actor_id")
+             .with_columns(n=pl.int_range(pl.len()).over("drive_id")).filter(pl.col("n") % 10 == 0))
+    egos = rows.join(tenth.select("drive_id", "actor_id"), on=["drive_id", "actor_id"])
+    pairs = egos.join(rows, on=["drive_id", "frame"], suffix="_a").filter(
+        (pl.col("actor_id") != pl.col("actor_id_a"))
+        & ((pl.col("x_m_a") - pl.col("x_m")) ** 2 + (pl.col("y_m_a") - pl.col("y_m")) ** 2 <= 200.0 ** 2))
+    assert counted == pairs.height > 0
+    assert set(components.measure(tracks)) == set(components.PARTS)

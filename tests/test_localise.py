@@ -48,3 +48,32 @@ def test_static_objects_are_not_localised():
     found = locate(tracks, drive.lanes)
     kinds = tracks.select("actor_id", "kind").unique()
     assert set(found.join(kinds, on="actor_id")["kind"]) == {"vehicle", "truck", "bus", "person", "motorcycle"}
+
+
+def test_every_thread_queries_its_own_lane_geometries(monkeypatch):
+    """GEOS prepared geometries build caches on first use and are not safe to share between threads: each worker
+    gets its own copies, and localising in many small chunks on threads gives what one sequential call gives."""
+    import threading
+
+    from logiq_sql import localise
+
+    (drive,) = read_scenarionet(SCENE)
+    tracks = drive.tracks.with_columns(pl.col("heading_rad").fill_null(0.0))
+    index = LaneIndex(drive.lanes)
+    one_call = locate(tracks, drive.lanes, index)
+    seen: dict[int, object] = {}
+    original = LaneIndex.geometry
+
+    def recorded(self):
+        g = original(self)
+        seen.setdefault(threading.get_ident(), g)
+        assert seen[threading.get_ident()] is g  # a thread keeps its own copies
+        return g
+
+    monkeypatch.setattr(LaneIndex, "geometry", recorded)
+    monkeypatch.setattr(localise, "CHUNK_POINTS", 500)
+    monkeypatch.setattr(localise, "WORKERS", 3)
+    chunked = locate(tracks, drive.lanes, LaneIndex(drive.lanes))
+    assert len(seen) > 1 and len({id(g) for g in seen.values()}) == len(seen)
+    key = ["drive_id", "actor_id", "frame", "lane_id"]
+    assert chunked.sort(key).equals(one_call.sort(key)) and one_call.height > 0
