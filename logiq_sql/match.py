@@ -26,6 +26,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql import db, units
+from logiq_sql.batching import batches
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.encroachment import encroachments
 from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine, stored_schema
@@ -311,7 +312,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             if todo.height:
                 groups.setdefault((_lane_tolerance(s), tuple(todo["drive_id"])), []).append(s)
         work = [(tolerance, batch, group) for (tolerance, ids), group in sorted(groups.items())
-                for batch in _batches(con, ids, batch_rows)]
+                for batch in _match_batches(con, ids, batch_rows)]
         for step, (tolerance, batch, group) in enumerate(work, 1):
             todo = pl.DataFrame({"drive_id": batch}, schema={"drive_id": pl.String})
             con.register("run_drives", todo)
@@ -354,21 +355,13 @@ def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.
     return known
 
 
-def _batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_rows: int) -> list[list[str]]:
+def _match_batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_rows: int) -> list[list[str]]:
     """``ids`` (sorted) cut into consecutive batches of at most ``batch_rows`` track rows, or one drive each."""
     con.register("_batch_ids", pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String}))
     sizes = con.sql("select drive_id, rows_read - rows_rejected as n from drive_inputs "
                     "where drive_id in (select drive_id from _batch_ids) order by drive_id").pl()
     con.unregister("_batch_ids")
-    batches: list[list[str]] = []
-    filled = 0
-    for drive_id, n in sizes.iter_rows():
-        if not batches or filled + n > batch_rows:
-            batches.append([])
-            filled = 0
-        batches[-1].append(drive_id)
-        filled += n
-    return batches
+    return batches(sizes.iter_rows(), batch_rows)
 
 
 def _drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.DataFrame, ego: str,

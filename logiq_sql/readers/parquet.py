@@ -19,6 +19,7 @@ from pathlib import Path
 import polars as pl
 
 from logiq_sql import schema
+from logiq_sql.batching import batches
 from logiq_sql.errors import InputError, did_you_mean
 from logiq_sql.readers.base import DriveData
 
@@ -116,25 +117,11 @@ def read_parquet(path: str | Path) -> Iterator[DriveData]:
                         reject_reason=f"{tracks_file}: drive '{drive_id}' is listed in drives.parquet but has no "
                                       "track rows. Fix: add its rows to tracks.parquet or remove it from "
                                       "drives.parquet.")
-    for chunk_ids in _chunks(sizes):
+    for chunk_ids in batches(sizes.iter_rows(), CHUNK_ROWS):
         chunk = lazy.filter(pl.col("drive_id").is_in(chunk_ids)).collect()
         for (drive_id,), rows in chunk.group_by("drive_id", maintain_order=True):
             yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), maps, tracks_file)
         del chunk
-
-
-def _chunks(sizes: pl.DataFrame) -> Iterator[list[str]]:
-    """Consecutive drive ids of ``sizes`` (drive_id, len) in groups of at most CHUNK_ROWS rows, or one drive."""
-    ids: list[str] = []
-    rows = 0
-    for drive_id, n in sizes.iter_rows():
-        if ids and rows + n > CHUNK_ROWS:
-            yield ids
-            ids, rows = [], 0
-        ids.append(drive_id)
-        rows += n
-    if ids:
-        yield ids
 
 
 def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.DataFrame], tracks_file: Path) -> DriveData:
