@@ -18,6 +18,7 @@ import polars as pl
 from logiq_sql import db, schema
 from logiq_sql.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.localise import locate
+from logiq_sql.match import PERSISTED
 from logiq_sql.readers.av2 import log_folders
 from logiq_sql.readers.base import DriveData
 from logiq_sql.readers.sumo import run_folders
@@ -358,21 +359,22 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
 
 
 def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
-    """A drive that is re-ingested or now rejected keeps no matches from an earlier run of its old data (drives
-    and matches would report them until the next match); the coverage histograms are recounted without them."""
+    """A drive that is re-ingested or now rejected keeps no matches, and no kept relation tables, from an earlier
+    run of its old data (drives, matches and relations would report them until the next match); the coverage
+    histograms are recounted without its matches."""
     con.register("_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String}))
     try:
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+        for table in (t for t in PERSISTED if t in have):  # kept whether or not the drive had matches
+            con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
         if not con.execute("select count(*) from matches where drive_id in (select drive_id from _stale)"
                            ).fetchall()[0][0]:
             return
-        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
         for table in ("match_phases", "kpis", "coverage_samples"):
             if table in have:
                 con.execute(f"delete from {table} where match_id in (select match_id from matches "
                             "where drive_id in (select drive_id from _stale))")
-        for table in ("matches", "relations", "ego_lanes", "passages", "encroachments"):
-            if table in have:
-                con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
+        con.execute("delete from matches where drive_id in (select drive_id from _stale)")
         recount_coverage(con)
     finally:
         con.unregister("_stale")

@@ -638,3 +638,20 @@ def test_a_drive_rejected_on_reingest_keeps_no_old_matches(tmp_path):
     assert con.sql("select count(distinct match_id) from coverage_samples").fetchall() == [(1,)]
     hits = con.sql("select item, sum(hits) from coverage where scenario = 'follower_vehicle' group by item").fetchall()
     assert hits and all(n == 1 for _, n in hits)  # recounted: the rejected drive's match is gone from coverage
+
+
+def test_a_reingested_drive_without_matches_keeps_no_old_relations(tmp_path):
+    """The kept relation tables of a drive go with its old rows even when it had no match."""
+    db = tmp_path / "x.duckdb"
+    folder = write(tmp_path / "in", scene("d1"))
+    ingest("parquet", [folder], db)
+    assert match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded").matches.is_empty()
+
+    def kept_rows() -> dict[str, int]:
+        with duckdb.connect(str(db), read_only=True) as con:
+            return {t: con.execute(f"select count(*) from {t} where drive_id = 'd1'").fetchall()[0][0]
+                    for t in ("relations", "ego_lanes")}
+
+    assert all(n > 0 for n in kept_rows().values())
+    ingest("parquet", [folder], db)
+    assert kept_rows() == {"relations": 0, "ego_lanes": 0}
