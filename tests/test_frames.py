@@ -228,3 +228,9 @@ def test_not_a_table():
     with pytest.raises(InputError, match=r"tracks: a dict is not a table. Fix: pass a Polars DataFrame or LazyFrame "
                                          r"or an Arrow table"):
         match_frames({"drive_id": ["d1"]})
+
+
+def test_no_file_is_written(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # DuckDB would put a file or its spill folder here, relative to the working folder
+    result = match_frames(scene(), lanes=pl.DataFrame(TWO_LANES), scenarios=["follower_vehicle"], ego="recorded")
+    assert result.matches.height == 1 and list(tmp_path.iterdir()) == []
