@@ -220,23 +220,43 @@ def _stored(path: Path, table: str) -> pl.DataFrame:
     return frame.drop("run_id", strict=False).sort(OUTPUTS[table], nulls_last=True)
 
 
+def _both_engines(source: Path, tmp: Path, runs: list[dict]) -> dict[str, Path]:
+    """Copies of an ingested file, each matched with the same runs by one engine."""
+    copies = {engine: tmp / f"{engine}.duckdb" for engine in ("duckdb", "polars")}
+    for engine, path in copies.items():
+        shutil.copy(source, path)
+        for kwargs in runs:
+            match(path, engine=engine, **kwargs)
+    return copies
+
+
+def _assert_same_outputs(copies: dict[str, Path], scenarios: list[str]) -> None:
+    matched = _stored(copies["duckdb"], "matches").group_by("scenario").len().sort("scenario")
+    assert matched["scenario"].to_list() == scenarios  # every scenario has matches to compare
+    for table in OUTPUTS:
+        _same_rows(_stored(copies["duckdb"], table), _stored(copies["polars"], table), table)
+
+
 def test_engine_polars_gives_duckdbs_results(drives, tmp_path):
     """The three scenarios that need no Polars-less file, as in the Spark parity test: NGSIM US-101 (every 4th car
     the SUT) and nuScenes scene-0103 (the cyclist within 6 m), matched incrementally in two groups and one drive
     per batch; every output table equal to DuckDB's, floats within 1e-9 relative."""
     real, _ = drives
-    copies = {engine: tmp_path / f"{engine}.duckdb" for engine in ("duckdb", "polars")}
     six_m = {"max_distance_from_cyclist": "6m"}
-    for engine, path in copies.items():
-        shutil.copy(real, path)
-        match(path, scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4", drives=["scene-0103"],
-              engine=engine)
-        match(path, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], overrides=six_m,
-              ego="every:4", batch_rows=1, engine=engine)
-    matched = _stored(copies["duckdb"], "matches").group_by("scenario").len().sort("scenario")
-    assert matched["scenario"].to_list() == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
-    for table in OUTPUTS:
-        _same_rows(_stored(copies["duckdb"], table), _stored(copies["polars"], table), table)
+    copies = _both_engines(real, tmp_path, [
+        dict(scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4", drives=["scene-0103"]),
+        dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], overrides=six_m,
+             ego="every:4", batch_rows=1)])
+    _assert_same_outputs(copies, ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"])
+
+
+def test_engine_polars_gives_duckdbs_results_on_a_sumo_motorway(tmp_path):
+    """The bundled SUMO motorway run, every 20th vehicle as the SUT: followers and cut-outs."""
+    source = tmp_path / "motorway.duckdb"
+    ingest("sumo", [DATA / "sumo/motorway_s1"], source)
+    copies = _both_engines(source, tmp_path, [
+        dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], ego="every:20")])
+    _assert_same_outputs(copies, ["follower_vehicle", "sut_cut_out"])
 
 
 def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
