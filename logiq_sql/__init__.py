@@ -7,6 +7,7 @@
                       overrides={"max_distance_from_sut_in_time_units": "3s"})
     result.matches          # polars.DataFrame, one row per match
     print(lq.render("cyclist_close_to_moving_sut"))   # the SQL that runs
+    lq.match_frames(tracks, lanes=lanes)   # frames in, frames out, nothing written (logiq_sql/frames.py)
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from logiq_sql.errors import InputError as InputError
 from logiq_sql.errors import LogiqError as LogiqError
 from logiq_sql.errors import ScenarioError as ScenarioError
 from logiq_sql.errors import UnitError as UnitError
+from logiq_sql.frames import FramesResult as FramesResult
+from logiq_sql.frames import match_frames as match_frames
 from logiq_sql.ingestion import ingest as ingest
 from logiq_sql.match import MatchResult as MatchResult
 from logiq_sql.match import match as match
@@ -24,7 +27,7 @@ from logiq_sql.scenario import list_scenarios as list_scenarios
 from logiq_sql.scenario import load_scenario as load_scenario
 
 __all__ = [
-    "InputError", "LogiqError", "MatchResult", "ScenarioError", "UnitError", "connect", "ingest",
-    "list_scenarios", "load_scenario", "match", "render",
+    "FramesResult", "InputError", "LogiqError", "MatchResult", "ScenarioError", "UnitError", "connect", "ingest",
+    "list_scenarios", "load_scenario", "match", "match_frames", "render",
 ]
 __version__ = "0.1.0"

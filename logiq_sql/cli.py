@@ -179,7 +179,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
     p.add_argument("--engine", choices=["duckdb", "spark", "polars"], default="duckdb",
                    help="what runs the queries: duckdb (default), spark (pip install 'logiq-sql[spark]', Java 17) "
-                        "or polars (the queries Polars SQL can run; docs/engines.md). Results land in --db either way")
+                        "or polars (Polars SQL, with its overrides; not yet the left turn: docs/engines.md). Results land "
+                        "in --db either way")
     p.add_argument("--spark-master", metavar="URL",
                    help="Spark master for --engine spark (default: $SPARK_MASTER, else local[2])")
     p.add_argument("--spark-tables", metavar="DIR",

@@ -30,6 +30,7 @@ from sqlglot import exp
 
 from logiq_sql import schema
 from logiq_sql.errors import LogiqError
+from logiq_sql.paths import query_path
 from logiq_sql.sql import _literal, _used, bind, materialise, query_text
 
 ENGINES = ("duckdb", "spark", "polars")
@@ -270,8 +271,8 @@ def check_engine(name: str, relatives: list[str]) -> None:
     if name not in ENGINES:
         raise EngineError(f"--engine {name}: choose one of {', '.join(ENGINES)}.")
     for rel in relatives:
-        if name == "polars" and rel in POLARS_UNSUPPORTED:
-            raise EngineError(f"--engine polars: queries/{rel} cannot run on Polars SQL: {POLARS_UNSUPPORTED[rel]}. "
+        if name == "polars" and (reason := polars_blocker(rel)):
+            raise EngineError(f"--engine polars: queries/{rel} cannot run on Polars SQL: {reason}. "
                               "Run this scenario with --engine duckdb or spark (docs/engines.md: what runs where).")
 
 
@@ -318,9 +319,18 @@ def open_engine(name: str, con: duckdb.DuckDBPyConnection, spark_master: str | N
 # --------------------------------------------------------------------------------------------------- Polars
 
 
-def inline_parameters(relative: str, values: dict[str, object]) -> str:
-    """queries/<relative> with every ``$name`` replaced by its value as a literal node of the sqlglot tree (Polars
-    SQL has no placeholders); strings stay quoted literals, so a value can never become SQL."""
+OVERRIDES = "overrides"  # queries/overrides/<engine>/<relative>: an engine's own text of a portable query file
+
+
+def override(engine: str, relative: str) -> str | None:
+    """queries/overrides/<engine>/<relative> when that file exists (queries/overrides/README.md), else None."""
+    candidate = f"{OVERRIDES}/{engine}/{relative}"
+    return candidate if query_path(candidate).is_file() else None
+
+
+def inline_parameters(relative: str, values: dict[str, object]) -> exp.Expression:
+    """queries/<relative> parsed, with every ``$name`` replaced by its value as a literal node of the sqlglot tree
+    (Polars SQL has no placeholders); strings stay quoted literals, so a value can never become SQL."""
     bound = bind(relative, values)
     tree = sqlglot.parse_one(query_text(relative), read="duckdb")
 
@@ -329,12 +339,47 @@ def inline_parameters(relative: str, values: dict[str, object]) -> str:
             return exp.convert(bound[node.name])
         return node
 
-    return tree.transform(literal).sql("duckdb")
+    return tree.transform(literal)
+
+
+def digests_after(tree: exp.Expression) -> list[str]:
+    """Polars has no md5: each output column ``md5(x) as c`` of the outer select becomes ``x as c`` (in place),
+    and the engine hashes those columns afterwards. Returns their names; an md5 elsewhere stays and fails."""
+    names = []
+    for projection in getattr(tree, "expressions", []):
+        if isinstance(projection, exp.Alias) and isinstance(projection.this, exp.MD5):
+            projection.set("this", projection.this.this)
+            names.append(projection.alias)
+    return names
+
+
+def polars_text(relative: str, values: dict[str, object], portable: bool = False) -> tuple[str, list[str]]:
+    """The Polars SQL the engine runs for queries/<relative>: its Polars override, if any (unless ``portable``),
+    with the values inlined; and the columns to hash with md5 afterwards (none when ``portable``)."""
+    chosen = relative if portable else (override("polars", relative) or relative)
+    tree = inline_parameters(chosen, values)
+    digests = [] if portable else digests_after(tree)
+    return tree.sql("duckdb"), digests
+
+
+def polars_blocker(relative: str) -> str | None:
+    """Why the Polars engine cannot run queries/<relative> (Polars SQL's error on the portable text), or None:
+    the file runs as it is, has an override, or needs only the md5 the engine computes afterwards."""
+    reason = POLARS_UNSUPPORTED.get(relative)
+    if reason is None or override("polars", relative) is not None:
+        return None
+    if reason == POLARS_MD5:
+        tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+        digests_after(tree)
+        return reason if tree.find(exp.MD5) is not None else None
+    return reason
 
 
 class PolarsEngine(Engine):
-    """Polars' SQLContext over the canonical tables (read from the DuckDB file); runs only the queries that
-    POLARS_UNSUPPORTED does not list."""
+    """Polars' SQLContext over the canonical tables (read from the DuckDB file). A query file runs as its Polars
+    override where queries/overrides/polars/ has one; the match ids' md5 is DuckDB's, over the key text Polars
+    built (Polars has no md5, and the ids must stay those of every other engine); files that polars_blocker
+    names do not run."""
 
     name = "polars"
 
@@ -345,9 +390,25 @@ class PolarsEngine(Engine):
         for name, frame in self.inputs.items():
             self.ctx.register(name, frame)
 
-    def run(self, relative: str, values: dict[str, object]) -> pl.DataFrame:
-        """queries/<relative> on Polars SQL, whether or not POLARS_UNSUPPORTED lists it (the verdict tests)."""
-        return self.ctx.execute(inline_parameters(relative, values), eager=True)
+    def run(self, relative: str, values: dict[str, object], portable: bool = False) -> pl.DataFrame:
+        """queries/<relative> on Polars SQL as the engine runs it; ``portable``: the portable text as it is, with
+        no override and no md5 afterwards (the verdict tests)."""
+        text, digests = polars_text(relative, values, portable)
+        result = self.ctx.execute(text, eager=True)
+        for column in digests:
+            result = self._md5(result, column)
+        return result
+
+    def _md5(self, frame: pl.DataFrame, column: str) -> pl.DataFrame:
+        """``column`` replaced by DuckDB's md5 of it, over its distinct values and joined back (row order kept)."""
+        keys = frame.select(pl.col(column).unique())
+        self.con.register("_md5_keys", keys)
+        try:
+            digests = self.con.sql(f'select "{column}", md5("{column}") as _md5 from _md5_keys').pl()
+        finally:
+            self.con.unregister("_md5_keys")
+        return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
+                .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 
     def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
         check_engine(self.name, [relative])
@@ -376,12 +437,14 @@ class PolarsEngine(Engine):
                 self.ctx.unregister(table)
 
 
-# The query files Polars SQL (polars 2.1) cannot run, with the error it gives. Every other query file runs there
-# and gives DuckDB's rows: tests/test_polars.py runs each file on both over the same inputs and checks this table
-# both ways (docs/engines.md has the table with the reasons).
+POLARS_MD5 = "unsupported function 'md5'"
+# The query files whose portable text Polars SQL (polars 2.1) cannot run, with the error it gives. Every other
+# query file runs there and gives DuckDB's rows: tests/test_polars.py runs each file on both over the same inputs
+# and checks this table both ways, and checks that each Polars override (and the md5 afterwards) gives DuckDB's
+# rows. polars_blocker says which of these the engine still runs (docs/engines.md has the table).
 POLARS_UNSUPPORTED: dict[str, str] = {
     "relations/ego_lanes.sql": "unexpected clause found in 'LAST_VALUE' (IGNORE NULLS)",
-    "match/identify.sql": "unsupported function 'md5'",
+    "match/identify.sql": POLARS_MD5,
     "phases/unprotected_left_turn_frames.sql": "unsupported function 'bool_or'",
     "staging/tracks.sql": "unexpected clause found in 'LAST_VALUE' (IGNORE NULLS)",
     "coverage/histogram.sql": 'unable to find column "value_text:b"',  # a LEFT JOIN whose ON has an OR of ranges

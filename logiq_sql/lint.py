@@ -13,6 +13,7 @@ import sqlglot
 from sqlglot import exp
 from sqlglot.errors import ErrorLevel
 
+from logiq_sql.engines import OVERRIDES, POLARS_UNSUPPORTED, digests_after
 from logiq_sql.paths import data_dir
 
 # function names (as sqlglot spells the node class) that do not carry over to Spark
@@ -26,8 +27,33 @@ _NOT_PORTABLE_FUNCS = {
 }
 
 
-def lint_sql(text: str, where: str) -> list[str]:
-    """Problems found in one query (empty when portable)."""
+def polars_findings(tree: exp.Expression) -> list[str]:
+    """Constructs Polars SQL (polars 2.1) does not run, each with the portable way around it."""
+    found = []
+    for spec in tree.find_all(exp.WindowSpec):
+        if (spec.args.get("kind") or "").upper() == "RANGE":
+            found.append("RANGE window frames do not run on Polars; use ROWS over frames")
+    if tree.find(exp.IgnoreNulls):
+        found.append("last_value/first_value(... ignore nulls) does not run on Polars; take the running max of the "
+                     "frame that has a value and join back")
+    if tree.find(exp.LogicalOr):
+        found.append("bool_or() does not run on Polars; use max(case when ... then 1 else 0 end) = 1")
+    for join in tree.find_all(exp.Join):
+        on = join.args.get("on")
+        if join.args.get("side") and on is not None and on.find(exp.Or):
+            found.append("an OR in the ON of an outer join does not run on Polars; join once per alternative "
+                         "and union")
+    outer = tree.copy()
+    digests_after(outer)  # md5(x) as an output column: the Polars engine hashes it afterwards
+    if outer.find(exp.MD5):
+        found.append("md5() inside an expression does not run on Polars; only md5(x) as an output column does")
+    return found
+
+
+def lint_sql(text: str, where: str, polars_override: bool = False, polars_refused: bool = False) -> list[str]:
+    """Problems found in one query (empty when portable). What does not run on Polars SQL is a problem unless
+    the file has a Polars override (``polars_override``) or the Polars engine refuses it by name
+    (``polars_refused``: engines.POLARS_UNSUPPORTED, tested to fail there)."""
     problems = []
     try:
         tree = sqlglot.parse_one(text, read="duckdb")
@@ -36,9 +62,8 @@ def lint_sql(text: str, where: str) -> list[str]:
     for join in tree.find_all(exp.Join):
         if (join.args.get("kind") or "").upper() == "ASOF" or "ASOF" in join.sql("duckdb").upper()[:20]:
             problems.append(f"{where}: ASOF JOIN runs only on DuckDB; use a range join with row_number() = 1")
-    for spec in tree.find_all(exp.WindowSpec):
-        if (spec.args.get("kind") or "").upper() == "RANGE":
-            problems.append(f"{where}: RANGE window frames do not run on Polars; use ROWS over frames")
+    if not (polars_override or polars_refused):
+        problems += [f"{where}: {finding}" for finding in polars_findings(tree)]
     for node in tree.find_all(exp.Func):
         reason = _NOT_PORTABLE_FUNCS.get(type(node).__name__)
         if reason:
@@ -75,12 +100,37 @@ def _guarded(div: exp.Div) -> bool:
     return div.find_ancestor(exp.If, exp.Case) is not None
 
 
+def portable_files(root: Path) -> list[Path]:
+    """The query files every engine runs, the engine overrides left out."""
+    return [p for p in sorted(root.rglob("*.sql")) if p.relative_to(root).parts[0] != OVERRIDES]
+
+
 def lint_tree(root: Path | None = None) -> list[str]:
+    """Every portable query file, knowing which have a Polars override (queries/overrides/README.md); every
+    override, which must replace a portable file, bind the same parameters and itself run on Polars."""
     root = root or data_dir("queries")
     problems: list[str] = []
-    for path in sorted(root.rglob("*.sql")):
-        problems += lint_sql(path.read_text(), str(path.relative_to(root.parent)))
+    polars = root / OVERRIDES / "polars"
+    for path in portable_files(root):
+        relative = str(path.relative_to(root))
+        problems += lint_sql(path.read_text(), str(path.relative_to(root.parent)),
+                             polars_override=(polars / relative).is_file(), polars_refused=relative in POLARS_UNSUPPORTED)
+    for path in sorted(polars.rglob("*.sql")) if polars.is_dir() else []:
+        where = str(path.relative_to(root.parent))
+        twin = root / path.relative_to(polars)
+        if not twin.is_file():
+            problems.append(f"{where}: overrides queries/{twin.relative_to(root)}, which does not exist; remove it")
+            continue
+        problems += [f"{where}: {finding}" for finding in polars_findings(sqlglot.parse_one(path.read_text(),
+                                                                                           read="duckdb"))]
+        if _parameters(path) != _parameters(twin):
+            problems.append(f"{where}: binds {sorted(_parameters(path))}, but queries/{twin.relative_to(root)} binds "
+                            f"{sorted(_parameters(twin))}; an override takes the same parameters")
     return problems
+
+
+def _parameters(path: Path) -> set[str]:
+    return {node.name for node in sqlglot.parse_one(path.read_text(), read="duckdb").find_all(exp.Placeholder)}
 
 
 # tables the queries read that are not canonical inputs: what the matcher registers or stores around the steps
@@ -121,7 +171,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
         seen.add(rel)
         problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
     root = root or data_dir("queries")
-    for path in sorted(root.rglob("*.sql")):
+    for path in portable_files(root):  # overrides run on their engine only (tests/test_polars.py)
         rel = str(path.relative_to(root))
         if rel not in seen:
             problems.append(f"queries/{rel}: no scenario step runs it, so it was not checked on Spark")

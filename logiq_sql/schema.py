@@ -75,7 +75,8 @@ DRIVE_INPUTS = Table(
     "One row per drive that ingest saw, accepted or rejected, with where it came from.",
     (
         _c("drive_id", S, "Unique id of the drive in this database.", False),
-        _c("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2.", False),
+        _c("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2 (frames: given to "
+                               "match_frames, in memory).", False),
         _c("source_path", S, "File the drive was read from.", False),
         _c("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
         _c("dt_s", F, "Sample period in seconds."),

@@ -35,7 +35,7 @@ def outputs(nb: nbformat.NotebookNode, kind: str) -> list[str]:
     return found
 
 
-@pytest.mark.parametrize("name", ["quickstart.ipynb", "exploration.ipynb"])
+@pytest.mark.parametrize("name", ["quickstart.ipynb", "exploration.ipynb", "frames.ipynb"])
 def test_committed_notebooks_have_no_outputs(name):
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
     assert [c for c in nb.cells if c.cell_type == "code" and (c.outputs or c.execution_count)] == []
@@ -58,3 +58,16 @@ def test_exploration(tmp_path, monkeypatch):
     assert len(images) == 8
     tables = "".join(outputs(nb, "text/html"))
     assert "pet_between_sut_and_npc_s" in tables and "empty_buckets" in tables
+
+
+def test_frames(tmp_path, monkeypatch):
+    nb = execute("frames.ipynb", tmp_path, monkeypatch)
+    printed = "".join(outputs(nb, "stream"))
+    assert "53,089 track rows, 1,307 lanes, 4 drives" in printed
+    assert "follower_vehicle: 4 matches in 3 drive(s)" in printed and "cyclist_close_to_moving_sut: 1 matches" in printed
+    assert "sut_cut_out: ran" in printed
+    assert "unprotected_left_turn_with_yield_and_traffic_light cannot run without junctions" in printed
+    assert "follower_vehicle cannot run without lanes" in printed  # the LazyFrame without a map
+    assert "tracks: missing column 'x_m'. Did you mean 'x'?" in printed
+    assert "actors move at a median 1,038 m/s between samples" in printed
+    assert len(outputs(nb, "image/png")) == 2  # the timeline and the follower coverage

@@ -1,6 +1,8 @@
 """Polars SQL against DuckDB, query file by query file, so the verdict table (engines.POLARS_UNSUPPORTED) cannot
-rot: a query it does not list must give DuckDB's rows over the same inputs; a query it lists must fail with the
-listed error. And --engine polars stops, naming the query file and the reason, before it runs anything.
+rot: a portable query it does not list must give DuckDB's rows over the same inputs; a query it lists must fail
+with the listed error. What the engine runs instead (a Polars override in queries/overrides/polars/, or the match
+ids' md5 computed afterwards) must give DuckDB's rows too. --engine polars runs the scenarios whose every file it
+can run, with DuckDB's results, and stops before anything runs, naming the query file and the reason, otherwise.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import pytest
 
 from logiq_sql import db, ingest, match
 from logiq_sql.encroachment import encroachments
-from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine
+from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine, override, polars_blocker
 from logiq_sql.match import _run_drives, parse_ego, resolve_scenarios, run_values, scenario_steps
 from logiq_sql.paths import data_dir
 from logiq_sql.sql import query_text
@@ -37,15 +39,25 @@ def _same_rows(duck: pl.DataFrame, got: pl.DataFrame, where: str) -> None:
             assert x.to_list() == y.cast(x.dtype).to_list(), (where, col)
 
 
-def _verdict(polars: PolarsEngine, duck: pl.DataFrame, relative: str, values: dict[str, object]) -> None:
+def _verdict(polars: PolarsEngine, duck: pl.DataFrame, relative: str, values: dict[str, object],
+             ran_otherwise: set[str]) -> None:
+    """The portable text against the verdict table; then, where the engine runs the file another way (an
+    override, md5 afterwards), that way against DuckDB's rows; a file the engine cannot run must fail."""
     if relative in POLARS_UNSUPPORTED:
         with pytest.raises(Exception, match=re.escape(POLARS_UNSUPPORTED[relative])):
-            polars.run(relative, values)
+            polars.run(relative, values, portable=True)
     else:
-        _same_rows(duck, polars.run(relative, values), relative)
+        _same_rows(duck, polars.run(relative, values, portable=True), relative)
+    if polars_blocker(relative) is not None:
+        with pytest.raises(Exception, match=re.escape(POLARS_UNSUPPORTED[relative])):
+            polars.run(relative, values)
+    elif relative in POLARS_UNSUPPORTED or override("polars", relative):
+        _same_rows(duck, polars.run(relative, values), f"{relative} as the Polars engine runs it")
+        ran_otherwise.add(relative)
 
 
-def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str], checked: set[str]) -> None:
+def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str], checked: set[str],
+          ran_otherwise: set[str]) -> None:
     """Every step of the scenarios on DuckDB; each query file also on Polars over DuckDB's inputs to it."""
     con = db.connect(path)
     try:
@@ -61,7 +73,7 @@ def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str],
                 duck.materialise(table, rel, values)
                 result = duck.frame(table)
                 assert result.height > 0 or rel.startswith("kpis/"), rel  # compare real rows
-                _verdict(polars, result, rel, values)
+                _verdict(polars, result, rel, values, ran_otherwise)
                 checked.add(rel)
                 polars.register(table, result)  # the next step reads DuckDB's rows on both engines
                 if table == "crossing_pairs":
@@ -84,9 +96,10 @@ def drives(tmp_path_factory):
 def test_every_query_file_has_a_true_polars_verdict(drives, tmp_path):
     real, sumo = drives
     checked: set[str] = set()
+    ran_otherwise: set[str] = set()
     _walk(real, ["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], "auto",
-          {"max_distance_from_cyclist": "6m"}, checked)
-    _walk(sumo, [LEFT_TURN], "every:40", {}, checked)
+          {"max_distance_from_cyclist": "6m"}, checked, ran_otherwise)
+    _walk(sumo, [LEFT_TURN], "every:40", {}, checked, ran_otherwise)
 
     # ingest's staging query, over the tracks with the kinematics it derives taken out
     con = db.connect(real)
@@ -97,7 +110,7 @@ def test_every_query_file_has_a_true_polars_verdict(drives, tmp_path):
         polars = PolarsEngine(con)
         polars.register("tracks_raw", raw)
         _verdict(polars, con.sql("select * from (" + query_text("staging/tracks.sql") + ")").pl(), "staging/tracks.sql",
-                 {})
+                 {}, ran_otherwise)
         checked.add("staging/tracks.sql")
     finally:
         con.close()
@@ -111,20 +124,26 @@ def test_every_query_file_has_a_true_polars_verdict(drives, tmp_path):
         polars = PolarsEngine(con)
         for table in ("coverage_samples", "coverage_buckets"):
             polars.register(table, con.sql(f"select * from {table}").pl())
-        _verdict(polars, con.sql(query_text("coverage/histogram.sql")).pl(), "coverage/histogram.sql", {})
+        _verdict(polars, con.sql(query_text("coverage/histogram.sql")).pl(), "coverage/histogram.sql", {},
+                 ran_otherwise)
         checked.add("coverage/histogram.sql")
     finally:
         con.close()
 
-    every = {str(p.relative_to(data_dir("queries"))) for p in data_dir("queries").rglob("*.sql")}
+    queries = data_dir("queries")
+    every = {str(p.relative_to(queries)) for p in queries.rglob("*.sql") if p.parts[len(queries.parts)] != "overrides"}
     assert checked == every
+    # every override was run against DuckDB's rows, and overrides only files that exist
+    overrides = {str(p.relative_to(queries / "overrides/polars")) for p in (queries / "overrides/polars").rglob("*.sql")}
+    assert overrides <= ran_otherwise and overrides <= every
+    assert ran_otherwise == {"relations/ego_lanes.sql", "coverage/histogram.sql", "match/identify.sql"}
 
 
 def test_engine_polars_stops_before_running_and_names_the_query(drives):
-    real, _ = drives
-    with pytest.raises(EngineError, match=r"--engine polars: queries/relations/ego_lanes\.sql cannot run on Polars "
-                                          r"SQL: unexpected clause found in 'LAST_VALUE' \(IGNORE NULLS\)"):
-        match(real, scenarios=["cyclist_close_to_moving_sut"], engine="polars")
+    _, sumo = drives
+    with pytest.raises(EngineError, match=r"--engine polars: queries/phases/unprotected_left_turn_frames\.sql cannot "
+                                          r"run on Polars SQL: unsupported function 'bool_or'"):
+        match(sumo, scenarios=[LEFT_TURN], engine="polars")
 
 
 def test_engine_spark_without_pyspark_says_how_to_install(monkeypatch):
@@ -147,10 +166,10 @@ def test_render_has_no_polars_form():
 def test_cli_engine_polars_is_a_clear_error(drives, capsys):
     from logiq_sql.cli import main
 
-    real, _ = drives
-    assert main(["match", "--db", str(real), "--engine", "polars", "--scenario", "follower_vehicle", "--quiet"]) == 2
+    _, sumo = drives
+    assert main(["match", "--db", str(sumo), "--engine", "polars", "--scenario", LEFT_TURN, "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "--engine polars: queries/relations/ego_lanes.sql cannot run on Polars SQL" in err
+    assert "--engine polars: queries/phases/unprotected_left_turn_frames.sql cannot run on Polars SQL" in err
     assert "--engine duckdb or spark" in err
 
 
@@ -178,3 +197,93 @@ def test_select_drives_narrows_the_per_drive_tables_to_the_batch(drives):
                 assert got.rows() == counts.rows(), (engine.name, table)
     finally:
         con.close()
+
+
+OUTPUTS = {  # table -> sort key: every output table the matcher writes, except the run log
+    "matches": ["match_id"],
+    "match_phases": ["match_id", "phase_index"],
+    "kpis": ["match_id"],
+    "coverage_samples": ["match_id", "item"],
+    "coverage": ["scenario", "item", "bucket"],
+    "drive_scenarios": ["drive_id", "scenario"],
+    "relations": ["drive_id", "ego_id", "actor_id", "frame"],
+    "ego_lanes": ["drive_id", "ego_id", "frame"],
+}
+
+
+def _stored(path: Path, table: str) -> pl.DataFrame:
+    con = db.connect(path)
+    try:
+        frame = con.sql(f"select * from {table}").pl()
+    finally:
+        con.close()
+    return frame.drop("run_id", strict=False).sort(OUTPUTS[table], nulls_last=True)
+
+
+def _both_engines(source: Path, tmp: Path, runs: list[dict]) -> dict[str, Path]:
+    """Copies of an ingested file, each matched with the same runs by one engine."""
+    copies = {engine: tmp / f"{engine}.duckdb" for engine in ("duckdb", "polars")}
+    for engine, path in copies.items():
+        shutil.copy(source, path)
+        for kwargs in runs:
+            match(path, engine=engine, **kwargs)
+    return copies
+
+
+def _assert_same_outputs(copies: dict[str, Path], scenarios: list[str]) -> None:
+    matched = _stored(copies["duckdb"], "matches").group_by("scenario").len().sort("scenario")
+    assert matched["scenario"].to_list() == scenarios  # every scenario has matches to compare
+    for table in OUTPUTS:
+        _same_rows(_stored(copies["duckdb"], table), _stored(copies["polars"], table), table)
+
+
+def test_engine_polars_gives_duckdbs_results(drives, tmp_path):
+    """The three scenarios that need no Polars-less file, as in the Spark parity test: NGSIM US-101 (every 4th car
+    the SUT) and nuScenes scene-0103 (the cyclist within 6 m), matched incrementally in two groups and one drive
+    per batch; every output table equal to DuckDB's, floats within 1e-9 relative."""
+    real, _ = drives
+    six_m = {"max_distance_from_cyclist": "6m"}
+    copies = _both_engines(real, tmp_path, [
+        dict(scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4", drives=["scene-0103"]),
+        dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], overrides=six_m,
+             ego="every:4", batch_rows=1)])
+    _assert_same_outputs(copies, ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"])
+
+
+def test_engine_polars_gives_duckdbs_results_on_a_sumo_motorway(tmp_path):
+    """The bundled SUMO motorway run, every 20th vehicle as the SUT: followers and cut-outs."""
+    source = tmp_path / "motorway.duckdb"
+    ingest("sumo", [DATA / "sumo/motorway_s1"], source)
+    copies = _both_engines(source, tmp_path, [
+        dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], ego="every:20")])
+    _assert_same_outputs(copies, ["follower_vehicle", "sut_cut_out"])
+
+
+def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
+    """A construct Polars SQL cannot run is a lint problem in a portable file, unless the file has a Polars
+    override or the engine refuses it by name; an override must replace an existing file, bind the same
+    parameters and itself run on Polars."""
+    from logiq_sql.lint import lint_tree
+
+    root = tmp_path / "queries"
+    (root / "relations").mkdir(parents=True)
+    (root / "relations/runs.sql").write_text(
+        "select last_value(x ignore nulls) over (partition by a order by f rows between unbounded preceding and "
+        "current row) as y from t where f > $min_frame")
+    assert lint_tree(root) == [
+        "queries/relations/runs.sql: last_value/first_value(... ignore nulls) does not run on Polars; take the running "
+        "max of the frame that has a value and join back"]
+    polars = root / "overrides/polars/relations"
+    polars.mkdir(parents=True)
+    (polars / "runs.sql").write_text("select max(x) over (partition by a order by f rows between unbounded preceding "
+                                     "and current row) as y from t where f > $min_frame")
+    assert lint_tree(root) == []
+    (polars / "runs.sql").write_text("select bool_or(x) as y from t")
+    (polars / "gone.sql").write_text("select 1 as y")
+    assert lint_tree(root) == [
+        "queries/overrides/polars/relations/gone.sql: overrides queries/relations/gone.sql, which does not exist; "
+        "remove it",
+        "queries/overrides/polars/relations/runs.sql: bool_or() does not run on Polars; use max(case when ... then 1 "
+        "else 0 end) = 1",
+        "queries/overrides/polars/relations/runs.sql: binds [], but queries/relations/runs.sql binds ['min_frame']; an "
+        "override takes the same parameters"]

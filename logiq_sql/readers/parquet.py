@@ -34,7 +34,12 @@ def _read(path: Path) -> pl.DataFrame:
         raise InputError(f"{path}: not a readable Parquet file ({type(exc).__name__}: {exc}).") from None
 
 
-def _check_columns(frame: pl.DataFrame, table: schema.Table, required: tuple[str, ...], path: Path) -> pl.DataFrame:
+def check_table(frame: pl.DataFrame, table: schema.Table, path: str | Path,
+                required: tuple[str, ...] | None = None) -> pl.DataFrame:
+    """``frame`` in the columns and types of ``table``: a missing required column (default: the table's non-NULL
+    ones) or a column that does not convert is an error naming ``path``, the column and the fix."""
+    if required is None:
+        required = tuple(c.name for c in table.columns if not c.nullable)
     for col in required:
         if col not in frame.columns:
             raise InputError(
@@ -72,64 +77,84 @@ def read_parquet(path: str | Path) -> Iterator[DriveData]:
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     tracks_file = path / "tracks.parquet" if path.is_dir() else path
-    columns = _schema(tracks_file)
+    check_track_columns(_schema(tracks_file), tracks_file)
+    drives_meta: dict[str, dict] = {}
+    if path.is_dir() and (folder / "drives.parquet").exists():
+        drives_meta = drive_metadata(_read(folder / "drives.parquet"), folder / "drives.parquet")
+    maps = {t.name: check_table(_read(folder / f"{t.name}.parquet"), t, folder / f"{t.name}.parquet")
+            for t in (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)
+            if path.is_dir() and (folder / f"{t.name}.parquet").exists()}
+    yield from read_drives(pl.scan_parquet(tracks_file), drives_meta, maps, tracks_file, folder / "drives.parquet",
+                           "parquet")
+
+
+def check_track_columns(columns: dict[str, pl.DataType], where: str | Path) -> None:
+    """The required track columns are there and the numeric ones are numbers (``where`` names the input)."""
     unknown = [c for c in columns if c not in schema.TRACKS.column_names]
     for col in REQUIRED:
         if col not in columns:
             raise InputError(
-                f"{tracks_file}: missing column '{col}'.{did_you_mean(col, unknown, cutoff=0.5)}\n\n"
+                f"{where}: missing column '{col}'.{did_you_mean(col, unknown, cutoff=0.5)}\n\n"
                 f"Hint: tracks need {', '.join(REQUIRED)}; see docs/tables.md."
             )
     for col in _NUMERIC:
         if col in columns and not columns[col].is_numeric():
             raise InputError(
-                f"{tracks_file}: column '{col}' is {columns[col]}, not a number.\n\n"
+                f"{where}: column '{col}' is {columns[col]}, not a number.\n\n"
                 f"Hint: write {col} as a float in the unit its name says."
             )
-    drives_meta: dict[str, dict] = {}
-    if path.is_dir() and (folder / "drives.parquet").exists():
-        drives_meta = {str(r["drive_id"]): r for r in _read(folder / "drives.parquet").to_dicts()}
-    maps = {t.name: _check_columns(_read(folder / f"{t.name}.parquet"), t,
-                                   tuple(c.name for c in t.columns if not c.nullable), folder / f"{t.name}.parquet")
-            for t in (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)
-            if path.is_dir() and (folder / f"{t.name}.parquet").exists()}
 
-    lazy = pl.scan_parquet(tracks_file).with_columns(pl.col("drive_id").cast(pl.String),
-                                                     pl.col("actor_id").cast(pl.String))
+
+def drive_metadata(frame: pl.DataFrame, where: str | Path) -> dict[str, dict]:
+    """drives.parquet (drive_id, dt_s, map_id, ego_actor_id, attribution) as drive_id -> row."""
+    if "drive_id" not in frame.columns:
+        raise InputError(f"{where}: missing column 'drive_id'.{did_you_mean('drive_id', frame.columns)}\n\n"
+                         "Hint: drives need drive_id and may give dt_s, map_id, ego_actor_id; see docs/tables.md.")
+    return {str(r["drive_id"]): r for r in frame.to_dicts()}
+
+
+def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str, pl.DataFrame],
+                tracks_where: str | Path, drives_where: str | Path, source_format: str) -> Iterator[DriveData]:
+    """The drives of canonical track rows (a Parquet scan, or frames given to ``match_frames``), a few million
+    rows at a time; every drive of ``drives_meta`` is accounted for, a drive without rows as rejected."""
+    lazy = lazy.with_columns(pl.col("drive_id").cast(pl.String), pl.col("actor_id").cast(pl.String))
     try:
         # rows per drive in file order, without holding every row's drive_id
         sizes = lazy.group_by("drive_id", maintain_order=True).len().collect()
     except pl.exceptions.PolarsError as exc:
-        raise InputError(f"{tracks_file}: not a readable Parquet file ({type(exc).__name__}: {exc}).") from None
+        what = "Parquet file" if source_format == "parquet" else "frame"
+        raise InputError(f"{tracks_where}: not a readable {what} ({type(exc).__name__}: {exc}).") from None
     if sizes.height == 0:
-        raise InputError(f"{tracks_file}: no rows. Fix: write the drive's track rows, or leave the file out.")
+        raise InputError(f"{tracks_where}: no rows. Fix: write the drive's track rows, or leave the file out.")
     orphans = sizes.filter(pl.col("drive_id").is_null())["len"].sum()
     if orphans:
         # rows of no drive cannot be accounted to one: the file is refused rather than those rows lost
-        raise InputError(f"{tracks_file}: {orphans} row(s) have a NULL drive_id. Fix: give every row the "
+        raise InputError(f"{tracks_where}: {orphans} row(s) have a NULL drive_id. Fix: give every row the "
                          "drive it belongs to.")
     drive_ids = sizes["drive_id"].to_list()
     # a drive that drives.parquet lists but tracks.parquet has no row of is rejected, not forgotten
     for drive_id in sorted(set(drives_meta) - set(drive_ids)):
         meta = drives_meta[drive_id]
-        yield DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file),
+        yield DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_where),
                         dt_s=meta.get("dt_s") or math.nan, tracks=pl.DataFrame(), map_id=meta.get("map_id"),
-                        reject_reason=f"{tracks_file}: drive '{drive_id}' is listed in drives.parquet but has no "
-                                      "track rows. Fix: add its rows to tracks.parquet or remove it from "
-                                      "drives.parquet.")
+                        reject_reason=f"{tracks_where}: drive '{drive_id}' is listed in {Path(drives_where).name} but "
+                                      f"has no track rows. Fix: add its rows to {Path(tracks_where).name} or remove "
+                                      f"it from {Path(drives_where).name}.")
     for chunk_ids in batches(sizes.iter_rows(), CHUNK_ROWS):
         chunk = lazy.filter(pl.col("drive_id").is_in(chunk_ids)).collect()
         for (drive_id,), rows in chunk.group_by("drive_id", maintain_order=True):
-            yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), maps, tracks_file)
+            yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), maps, tracks_where, drives_where,
+                         source_format)
         del chunk
 
 
-def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.DataFrame], tracks_file: Path) -> DriveData:
+def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.DataFrame], tracks_file: str | Path,
+           drives_file: str | Path, source_format: str) -> DriveData:
     dt = meta.get("dt_s")
     if dt is not None and not (math.isfinite(dt) and dt > 0):
-        return DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file), dt_s=math.nan,
+        return DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_file), dt_s=math.nan,
                          tracks=pl.DataFrame(), map_id=meta.get("map_id"), rows_read=rows.height,
-                         reject_reason=f"{tracks_file.parent / 'drives.parquet'}: drive '{drive_id}' has dt_s = "
+                         reject_reason=f"{drives_file}: drive '{drive_id}' has dt_s = "
                                        f"{dt}. Fix: write the sample period in seconds (> 0), or leave it NULL to "
                                        "derive it from t_s.")
     if not dt:
@@ -141,9 +166,9 @@ def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, pl.Dat
         rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64, strict=False))
     if "is_ego" not in rows.columns:
         rows = rows.with_columns(is_ego=pl.lit(False))
-    tracks = _check_columns(rows, schema.TRACKS, REQUIRED, tracks_file)
+    tracks = check_table(rows, schema.TRACKS, tracks_file, REQUIRED)
     map_id = meta.get("map_id")
-    drive = DriveData(drive_id=drive_id, source_format="parquet", source_path=str(tracks_file), dt_s=dt,
+    drive = DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_file), dt_s=dt,
                       tracks=tracks, map_id=map_id, rows_read=rows.height, attribution=meta.get("attribution"))
     egos = tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())["actor_id"].unique().sort().to_list()
     if len(egos) > 1:

@@ -1,0 +1,174 @@
+-- Polars override of queries/relations/ego_lanes.sql (queries/overrides/README.md): the same rows, with the
+-- last transition found by the running max of its frame and a join back instead of last_value(... ignore nulls),
+-- which Polars SQL does not parse. Everything else is the portable file's text; change both together.
+-- relations: ego_lanes
+-- grain: one row per (drive_id, ego_id, frame): the ego's lane and its lane run
+-- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
+-- params: $lane_calculation_tolerance_length_m
+--
+-- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
+--   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
+--      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition;
+--   2. the change happens at the first frame after the transition at which the ego is in a lane and more
+--      than lane_calculation_tolerance_length away from the old lane and from the lanes that continue it
+--      (its successors and predecessors): the keep_lane tolerance. The best lane may meanwhile have moved on
+--      to the next segment, so a lane change across a segment boundary still counts;
+--   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change.
+-- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
+with
+
+ego_rows as (
+    select
+        t.drive_id,
+        t.actor_id as ego_id,
+        t.frame,
+        t.t_s,
+        al.lane_id
+    from tracks as t
+    inner join egos as e
+        on t.drive_id = e.drive_id and t.actor_id = e.ego_id
+    left join actor_lanes as al
+        on t.drive_id = al.drive_id and t.actor_id = al.actor_id and t.frame = al.frame
+),
+
+islands as (
+    select
+        *,
+        frame - row_number() over (
+            partition by drive_id, ego_id, coalesce(lane_id, '') order by frame
+        ) as island
+    from ego_rows
+),
+
+runs as (
+    select
+        drive_id,
+        ego_id,
+        lane_id,
+        island,
+        min(frame) as run_start_frame,
+        max(frame) as run_end_frame
+    from islands
+    group by drive_id, ego_id, lane_id, island
+),
+
+runs_with_previous as (
+    select
+        *,
+        lag(lane_id) over (partition by drive_id, ego_id order by run_start_frame) as previous_lane_id,
+        lag(run_end_frame) over (partition by drive_id, ego_id order by run_start_frame) as previous_end_frame
+    from runs
+),
+
+transitions as (
+    -- the ego's best lane becomes a lane beside the one it had: a lane change may be under way
+    select
+        r.drive_id,
+        r.ego_id,
+        d.map_id,
+        r.run_start_frame as transition_frame,
+        r.previous_lane_id as from_lane_id,
+        n.side
+    from runs_with_previous as r
+    inner join drive_inputs as d
+        on r.drive_id = d.drive_id
+    inner join lane_neighbours as n
+        on d.map_id = n.map_id and r.previous_lane_id = n.lane_id and r.lane_id = n.near_lane_id
+    where r.previous_end_frame = r.run_start_frame - 1
+),
+
+last_transition as (
+    -- every ego frame with the frame of the last transition at or before it: transitions happen at ego frames,
+    -- so the running max of the frames that have one is the last of them
+    select
+        e.drive_id,
+        e.ego_id,
+        e.frame,
+        e.lane_id,
+        max(tr.transition_frame) over (
+            partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+        ) as transition_frame
+    from ego_rows as e
+    left join transitions as tr
+        on e.drive_id = tr.drive_id and e.ego_id = tr.ego_id and e.frame = tr.transition_frame
+),
+
+pending as (
+    -- every ego frame with the last transition before it (over segment boundaries the best lane's id may
+    -- change again without a new transition)
+    select
+        lt.drive_id,
+        lt.ego_id,
+        lt.frame,
+        lt.lane_id,
+        tr.map_id,
+        lt.transition_frame,
+        tr.from_lane_id,
+        tr.side
+    from last_transition as lt
+    left join transitions as tr
+        on lt.drive_id = tr.drive_id and lt.ego_id = tr.ego_id and lt.transition_frame = tr.transition_frame
+),
+
+old_lane as (
+    -- per frame after a transition: is the ego (back) in the lane it came from, and how far from it is it
+    select
+        p.drive_id,
+        p.ego_id,
+        p.frame,
+        p.lane_id,
+        p.transition_frame,
+        p.side,
+        max(case when p.lane_id = l.line_lane_id then 1 else 0 end) as back_in_old_lane,
+        min(tl.dist_m) as old_lane_dist_m
+    from pending as p
+    inner join lane_line as l
+        on p.map_id = l.map_id and p.from_lane_id = l.lane_id
+    left join track_lanes as tl
+        on p.drive_id = tl.drive_id and p.ego_id = tl.actor_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
+    where p.transition_frame is not null
+    group by p.drive_id, p.ego_id, p.frame, p.lane_id, p.transition_frame, p.side
+),
+
+returns as (
+    select
+        drive_id,
+        ego_id,
+        transition_frame,
+        min(frame) as return_frame
+    from old_lane
+    where back_in_old_lane = 1 and frame > transition_frame
+    group by drive_id, ego_id, transition_frame
+),
+
+changes as (
+    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
+    -- tolerance away from the old lane (and from the lanes that continue it)
+    select
+        o.drive_id,
+        o.ego_id,
+        o.side,
+        min(o.frame) as frame
+    from old_lane as o
+    left join returns as r
+        on o.drive_id = r.drive_id and o.ego_id = r.ego_id and o.transition_frame = r.transition_frame
+    where o.lane_id is not null
+        and (r.return_frame is null or o.frame < r.return_frame)
+        and o.back_in_old_lane = 0
+        and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
+    group by o.drive_id, o.ego_id, o.transition_frame, o.side
+)
+
+select
+    e.drive_id,
+    e.ego_id,
+    e.frame,
+    e.t_s,
+    e.lane_id,
+    c.side as lane_change_side,
+    count(c.frame) over (
+        partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+    ) as lane_run
+from ego_rows as e
+left join changes as c
+    on e.drive_id = c.drive_id and e.ego_id = c.ego_id and e.frame = c.frame
