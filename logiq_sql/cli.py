@@ -136,10 +136,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("ingest", help="read drives into a DuckDB file", epilog=EPILOG,
                        description="Read drives (files or folders of them) into the canonical tables of a DuckDB "
                                    "file. Re-ingesting a drive replaces it.")
-    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo", "av2"],
+    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi"],
                    help="commonroad: CommonRoad XML (.xml, .xml.gz); scenarionet: ScenarioNet .pkl; "
                         "parquet: canonical tables (see docs/tables.md); sumo: SUMO run folders (docs/sumo.md); "
-                        "av2: Argoverse 2 sensor-log and motion-forecasting folders")
+                        "av2: Argoverse 2 sensor-log and motion-forecasting folders; opendrive: an .xodr map with "
+                        "tracks.parquet beside it; osi: ASAM OSI traces (.osi, .mcap), with an .xodr beside them "
+                        "as the map (docs/formats.md)")
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")

@@ -452,11 +452,25 @@ def _wkt(g):
 def _net(path: Path) -> tuple[str, tuple[pl.DataFrame, ...]]:
     raw = _read_bytes(path)
     map_id = "sumo-" + hashlib.sha1(_COMMENT.sub(b"", raw)).hexdigest()[:16]
-    return map_id, _map(_parse_xml(path, "net", raw), map_id, path)
+    return map_id, network_tables(path, map_id, raw=raw)
 
 
-def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
-    """lanes, lane_successors, junctions, traffic_lights of a SUMO network."""
+def network_tables(path: Path, map_id: str, raw: bytes | None = None,
+                   undo_offset: bool = False) -> tuple[pl.DataFrame, ...]:
+    """lanes, lane_successors, junctions, traffic_lights of a SUMO network.
+
+    ``undo_offset``: subtract the network's ``<location netOffset>`` from every coordinate, back to the frame of
+    the source netconvert converted (an OpenDRIVE map); a SUMO run's FCD is in the shifted frame, so not there.
+    """
+    root = _parse_xml(path, "net", raw)
+    location = root.find("location")
+    offset = np.zeros(2)
+    if undo_offset and location is not None and location.get("netOffset"):
+        offset = _coords(location.get("netOffset"))[0]
+    return _map(root, map_id, path, offset)
+
+
+def _map(root: ET.Element, map_id: str, path: Path, offset: np.ndarray) -> tuple[pl.DataFrame, ...]:
     junctions = {j.get("id"): j for j in root.iter("junction") if j.get("type") != "internal"}
     lane_rows: list[dict] = []
     for edge in root.iter("edge"):
@@ -482,7 +496,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
     if not lane_rows:
         raise InputError(f"{path}: the network has no lanes.")
     try:
-        coords = [_coords(r.pop("shape")) for r in lane_rows]
+        coords = [_coords(r.pop("shape")) - offset for r in lane_rows]
         lines = shapely.linestrings(np.concatenate(coords), indices=np.repeat(np.arange(len(coords)),
                                                                                [len(c) for c in coords]))
     except (ValueError, shapely.errors.GEOSException) as exc:
@@ -508,7 +522,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
 
     junction_rows = []
     for jid, j in junctions.items():
-        outline = _coords(j.get("shape", ""))
+        outline = _coords(j.get("shape", "")) - offset
         if j.get("type") == "dead_end" or len(outline) < 3:
             continue
         parts = [g for g in shapely.get_parts(shapely.make_valid(shapely.Polygon(outline)))
