@@ -98,6 +98,7 @@ def test_a_sensor_view_trace_reads_its_global_ground_truth(tmp_path):
             sv.global_ground_truth.CopyFrom(_ground_truth(i))
             sv.timestamp.CopyFrom(sv.global_ground_truth.timestamp)
             sv.host_vehicle_id.value = 1
+            sv.global_ground_truth.ClearField("host_vehicle_id")  # the view names the host: still the ego
             yield sv
 
     # named by the OSI convention (_sv_) and not: the content decides then

@@ -4,7 +4,7 @@
 Files
     ``.osi``: OSI's single-channel binary trace, each message a 4-byte little-endian length then the serialized
     message. The message type is ``osi3.GroundTruth`` or ``osi3.SensorView`` (whose ``global_ground_truth`` is
-    read): from the OSI trace-file naming convention (``..._gt_...`` / ``..._sv_...`` in the file name), else the
+    read, with the view's ``host_vehicle_id`` and ``timestamp`` where the ground truth has none): from the OSI trace-file naming convention (``..._gt_...`` / ``..._sv_...`` in the file name), else the
     first message decides (SensorView if it parses as one holding moving objects, else GroundTruth).
     ``.mcap``: every message of the channels whose schema is ``osi3.GroundTruth`` or ``osi3.SensorView``.
     A truncated or undecodable message rejects the whole file, naming the message and its byte offset: nothing of
@@ -33,7 +33,6 @@ Map
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Iterator
 from pathlib import Path
@@ -60,6 +59,9 @@ VEHICLE_KINDS = {
 OBJECT_KINDS = {"TYPE_PEDESTRIAN": "person", "TYPE_ANIMAL": "animal", "TYPE_OTHER": "object", "TYPE_UNKNOWN": "object"}
 EMERGENCY_ROLES = ("ROLE_AMBULANCE", "ROLE_FIRE", "ROLE_POLICE")
 _HEADER = struct.Struct("<L")
+_RAW = {"id": pl.UInt64, "kind": pl.String, "t_ns": pl.Int64, "x_m": pl.Float64, "y_m": pl.Float64,
+        "heading_rad": pl.Float64, "vx": pl.Float64, "vy": pl.Float64, "ax": pl.Float64, "ay": pl.Float64,
+        "length_m": pl.Float64, "width_m": pl.Float64}
 
 
 def _osi3():
@@ -136,7 +138,13 @@ def _ground_truths(path: Path) -> Iterator[tuple[str, object]]:
         except DecodeError as exc:
             raise InputError(f"{path}: {where} is not a valid osi3.{cls.__name__} ({exc}); the trace is corrupt. "
                              "Fix: copy or record it again.") from None
-        return msg.global_ground_truth if cls is sensor_view else msg
+        if cls is not sensor_view:
+            return msg
+        gt = msg.global_ground_truth  # the view's own host and time stand where its ground truth has none
+        for name in ("host_vehicle_id", "timestamp"):
+            if msg.HasField(name) and not gt.HasField(name):
+                getattr(gt, name).CopyFrom(getattr(msg, name))
+        return gt
 
     if path.suffix.lower() == ".mcap":
         for i, (name, _, body) in enumerate(_mcap_messages(path)):
@@ -165,19 +173,16 @@ def _is_sensor_view(sensor_view, body: bytes) -> bool:
 
 # ---------------------------------------------------------------------------------------------------- drive
 
-def _along(vector, yaw: float) -> float:
-    return vector.x * math.cos(yaw) + vector.y * math.sin(yaw)
-
-
 def read_osi(path: str | Path) -> Iterator[DriveData]:
     """One drive per OSI trace file."""
     path = Path(path)
-    cols: dict[str, list] = {c: [] for c in ("actor_id", "kind", "t_ns", "x_m", "y_m", "heading_rad", "speed_mps",
-                                             "accel_mps2", "length_m", "width_m")}
+    cols: dict[str, list] = {c: [] for c in _RAW}
+    put = [cols[c].append for c in _RAW]  # bound appends: the loop below runs once per object and message
     hosts: set[str] = set()
     map_reference = ""
     messages = 0
-    # protobuf messages decode one at a time: this loop is the decoder, the rest is set-based
+    kinds: dict[tuple[int, int, int], str] = {}  # (type, classification type, role) -> kind, looked up once
+    # protobuf messages decode one at a time: this loop is the decoder; projections and the rest are set-based
     for where, gt in _ground_truths(path):
         messages += 1
         if not gt.HasField("timestamp"):
@@ -187,26 +192,32 @@ def read_osi(path: str | Path) -> Iterator[DriveData]:
             hosts.add(str(gt.host_vehicle_id.value))
         map_reference = map_reference or gt.map_reference
         for obj in gt.moving_object:
-            base = obj.base
-            yaw = base.orientation.yaw
-            cols["actor_id"].append(str(obj.id.value))
-            cols["kind"].append(kind_of(obj))
-            cols["t_ns"].append(t_ns)
-            cols["x_m"].append(base.position.x)
-            cols["y_m"].append(base.position.y)
-            cols["heading_rad"].append(yaw if base.HasField("orientation") else None)
-            cols["speed_mps"].append(_along(base.velocity, yaw) if base.HasField("velocity") else None)
-            cols["accel_mps2"].append(_along(base.acceleration, yaw) if base.HasField("acceleration") else None)
-            cols["length_m"].append(base.dimension.length or None)
-            cols["width_m"].append(base.dimension.width or None)
+            base, vc = obj.base, obj.vehicle_classification
+            key = (obj.type, vc.type, vc.role)
+            velocity = base.velocity if base.HasField("velocity") else None
+            acceleration = base.acceleration if base.HasField("acceleration") else None
+            for append, value in zip(put, (
+                    obj.id.value, kinds.get(key) or kinds.setdefault(key, kind_of(obj)), t_ns, base.position.x,
+                    base.position.y, base.orientation.yaw if base.HasField("orientation") else None,
+                    velocity and velocity.x, velocity and velocity.y, acceleration and acceleration.x,
+                    acceleration and acceleration.y, base.dimension.length, base.dimension.width), strict=True):
+                append(value)
     if not messages:
         raise InputError(f"{path}: no OSI GroundTruth or SensorView message. Fix: pass a trace that has them.")
     if len(hosts) > 1:
         raise InputError(f"{path}: host_vehicle_id changes within the trace ({', '.join(sorted(hosts)[:5])}); a "
                          "drive has one ego. Fix: split the trace per host vehicle.")
-    rows = pl.DataFrame(cols, schema={"actor_id": pl.String, "kind": pl.String, "t_ns": pl.Int64, "x_m": pl.Float64,
-                                      "y_m": pl.Float64, "heading_rad": pl.Float64, "speed_mps": pl.Float64,
-                                      "accel_mps2": pl.Float64, "length_m": pl.Float64, "width_m": pl.Float64})
+    raw = pl.DataFrame(cols, schema=_RAW)
+    del cols, put
+    yaw = pl.col("heading_rad").fill_null(0.0)
+
+    def along(x: str, y: str) -> pl.Expr:  # a global vector projected on the heading (NULL when not given)
+        return pl.col(x) * yaw.cos() + pl.col(y) * yaw.sin()
+
+    rows = raw.select(
+        pl.col("id").cast(pl.String).alias("actor_id"), "kind", "t_ns", "x_m", "y_m", "heading_rad",
+        along("vx", "vy").alias("speed_mps"), along("ax", "ay").alias("accel_mps2"),
+        *[pl.when(pl.col(c) > 0).then(pl.col(c)).alias(c) for c in ("length_m", "width_m")])
     steps = rows["t_ns"].unique().sort().diff().drop_nulls()
     steps = steps.filter(steps > 0)
     if steps.is_empty():
