@@ -4,8 +4,9 @@
 Files
     ``.osi``: OSI's single-channel binary trace, each message a 4-byte little-endian length then the serialized
     message. The message type is ``osi3.GroundTruth`` or ``osi3.SensorView`` (whose ``global_ground_truth`` is
-    read, with the view's ``host_vehicle_id`` and ``timestamp`` where the ground truth has none): from the OSI trace-file naming convention (``..._gt_...`` / ``..._sv_...`` in the file name), else the
-    first message decides (SensorView if it parses as one holding moving objects, else GroundTruth).
+    read, with the view's ``host_vehicle_id`` and ``timestamp`` where the ground truth has none): from the OSI
+    trace-file naming convention (``..._gt_...`` / ``..._sv_...`` in the file name), else the first message
+    decides (SensorView if it parses as one holding moving objects, else GroundTruth).
     ``.mcap``: every message of the channels whose schema is ``osi3.GroundTruth`` or ``osi3.SensorView``.
     A truncated or undecodable message rejects the whole file, naming the message and its byte offset: nothing of
     it is written.

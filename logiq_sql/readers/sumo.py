@@ -340,7 +340,8 @@ def read_fcd(path: str | Path, columns: Iterable[str] = FCD_COLUMNS) -> pl.DataF
     navigation degrees; leader_id, leader_gap_m and leader_speed_mps are NULL where SUMO writes "" / -1).
 
     FCD XML (plain or gzipped) is parsed line by line with vectorised Polars regexes in chunks (bounded memory);
-    a Parquet file (by its magic bytes, any name) is SUMO's native Parquet output (its columns prefixed ``timestep_`` / ``vehicle_``).
+    a Parquet file (by its magic bytes, any name) is SUMO's native Parquet output (its columns prefixed
+    ``timestep_`` / ``vehicle_``).
     ``columns`` picks a subset (t_s is always included): fewer columns parse faster.
     """
     path = Path(path)
