@@ -161,3 +161,52 @@ def test_a_broken_map_is_rejected_naming_the_file(tmp_path):
         ((status, reason),) = con.sql("select status, reject_reason from drive_inputs").fetchall()
         assert con.sql("select count(*) from tracks").fetchall() == [(0,)]
     assert status == "rejected" and str(folder / "map.xodr") in reason
+
+
+def test_a_scenariogeneration_junction_gives_every_movement_with_its_turn(tmp_path):
+    """Four roads (one lane of 3 m each way) meeting at a junction of radius 15 m, every pair connected: each
+    incoming lane ends 15 m from the junction centre, 1.5 m right of its road's axis, and reaches the three other
+    roads through junction lanes, turning right, straight and left."""
+    pytest.importorskip("sumo", reason="Eclipse SUMO is not installed: pip install 'logiq-sql[sumo]'")
+    xodr = pytest.importorskip("scenariogeneration.xodr")
+    roads = [xodr.create_road(xodr.Line(100), id=i, left_lanes=1, right_lanes=1, lane_width=3.0)
+             for i in (1, 2, 3, 4)]
+    creator = xodr.CommonJunctionCreator(id=100, name="cross", startnum=100)
+    for road, angle in zip(roads, (0, np.pi / 2, np.pi, 3 * np.pi / 2), strict=True):
+        creator.add_incoming_road_circular_geometry(road=road, radius=15, angle=angle, road_connection="successor")
+    for a, b in ((1, 2), (1, 3), (1, 4), (2, 3), (2, 4), (3, 4)):
+        creator.add_connection(road_one_id=a, road_two_id=b)
+    odr = xodr.OpenDrive("cross")
+    for road in roads:
+        odr.add_road(road)
+    odr.add_junction_creator(creator)
+    odr.adjust_roads_and_lanes()
+    odr.write_xml(str(tmp_path / "cross.xodr"))
+    _, (lanes, successors, junctions, _) = xodr_map(tmp_path / "cross.xodr")
+    assert junctions["junction_id"].to_list() == ["100"]
+    centre = shapely.from_wkt(junctions["polygon_wkt"][0]).centroid
+    incoming = lanes.filter((pl.col("lane_type") == "normal") & pl.col("lane_id").str.starts_with("-"))
+    assert incoming.height == 4
+    headings = []
+    for line in _lines(incoming):
+        xy = shapely.get_coordinates(line)
+        assert math.hypot(*(xy[-1] - [centre.x, centre.y])) == pytest.approx(math.hypot(15.0, 1.5), abs=0.01)
+        headings.append(round(math.degrees(math.atan2(*(xy[-1] - xy[-2])[::-1]))))
+    assert sorted(headings) == [-90, 0, 90, 180]
+    inside = set(lanes.filter(pl.col("junction_id") == "100")["lane_id"])
+    assert inside and all(lane_id.startswith(":100_") for lane_id in inside)
+    entries = successors.filter(pl.col("lane_id").is_in(incoming["lane_id"].implode()))
+    assert entries["successor_id"].is_in(list(inside)).all()
+    turns = entries.group_by("lane_id").agg(pl.col("turn").sort())["turn"].to_list()
+    assert turns == [["left", "right", "straight"]] * 4
+    # every movement reaches a lane leaving the junction (the other roads' outgoing lanes)
+    graph = {}
+    for a, b in successors.select("lane_id", "successor_id").iter_rows():
+        graph.setdefault(a, []).append(b)
+
+    def exits(lane_id):
+        return {lane_id} if lane_id not in inside else {e for nxt in graph.get(lane_id, []) for e in exits(nxt)}
+
+    for entry in incoming["lane_id"]:
+        reached = {e for nxt in graph[entry] for e in exits(nxt)}
+        assert len(reached) == 3 and not reached & set(incoming["lane_id"]), (entry, reached)
