@@ -150,3 +150,15 @@ def test_a_broken_openlabel_fails_validation(xodr_db, tmp_path):
     path.write_text(json.dumps(label))
     with pytest.raises(Exception, match="'zero' is not of type 'integer'"):
         validate_openlabel(path)
+
+
+def test_openlabel_file_names_never_collide(tmp_path):
+    t = times(2.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True, drive_id=d) for d in ("a/b", "a_b")])
+    files = export_openlabel(db, tmp_path / "labels")
+    assert len({f.name for f in files}) == 2 and files[1].name == "a_b.json"
+    assert files[0].name.startswith("a_b-") and files[0].name.endswith(".json")
+    for f in files:
+        validate_openlabel(f)
+    names = {json.loads(f.read_text())["openlabel"]["metadata"]["name"] for f in files}
+    assert names == {"a/b", "a_b"}

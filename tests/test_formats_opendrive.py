@@ -210,3 +210,10 @@ def test_a_scenariogeneration_junction_gives_every_movement_with_its_turn(tmp_pa
     for entry in incoming["lane_id"]:
         reached = {e for nxt in graph[entry] for e in exits(nxt)}
         assert len(reached) == 3 and not reached & set(incoming["lane_id"]), (entry, reached)
+
+
+def test_two_maps_beside_one_tracks_file_are_refused(tmp_path):
+    for name in ("a.xodr", "b.xodr"):
+        (tmp_path / name).write_text("<OpenDRIVE/>")
+    with pytest.raises(InputError, match=r"2 OpenDRIVE maps \(\*\.xodr\); a folder holds one map"):
+        list(read_opendrive(tmp_path / "a.xodr"))

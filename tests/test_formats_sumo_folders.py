@@ -108,3 +108,12 @@ def test_two_configurations_are_refused(tmp_path):
         (run / name).write_text('<configuration><input><net-file value="net.xml.gz"/></input></configuration>')
     with pytest.raises(InputError, match=r"2 SUMO configurations \(a.sumocfg, b.sumocfg\)"):
         list(read_sumo(run))
+
+
+def test_a_small_truncated_gzip_fcd_is_still_found_and_reported_as_truncated(tmp_path):
+    run = _renamed(tmp_path)
+    head = gzip.compress(gzip.decompress((run / "trace.gz").read_bytes())[:20_000])
+    (run / "trace.gz").write_bytes(head[: len(head) // 2])  # a gzip stream cut in its first 10 KB
+    assert file_role(run / "trace.gz") == "fcd"
+    with pytest.raises(InputError, match=r"trace.gz: cannot be read to the end .* the file is truncated"):
+        list(read_sumo(run))

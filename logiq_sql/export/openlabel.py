@@ -18,6 +18,7 @@ UIDs are numbers in the order the elements are listed (objects by actor_id, acti
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -103,7 +104,10 @@ def export_openlabel(db_path: str | Path, out: str | Path, drives: list[str] | N
 
 
 def _file_name(drive_id: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in drive_id)
+    """The drive_id, or where it has other characters than letters, digits, - _ and ., those replaced by _ and
+    the first 8 hex digits of its MD5 appended (two ids never share a file)."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in drive_id)
+    return safe if safe == drive_id else f"{safe}-{hashlib.md5(drive_id.encode()).hexdigest()[:8]}"
 
 
 def _drive_label(drive: dict, frame_range, actors: pl.DataFrame, matches: pl.DataFrame, phases: pl.DataFrame,

@@ -81,13 +81,12 @@ def with_map(drive: DriveData, map_id: str, tables: tuple[pl.DataFrame, ...]) ->
 def read_opendrive(path: str | Path) -> Iterator[DriveData]:
     """The drives of the ``tracks.parquet`` beside an OpenDRIVE map, each on that map."""
     path = Path(path)
-    if path.is_dir():
-        maps = sorted(path.glob("*.xodr"))
-        if len(maps) != 1:
-            raise InputError(f"{path}: {len(maps)} OpenDRIVE maps (*.xodr); a folder holds one map and its drives. "
-                             "Fix: pass the .xodr file, or move each map and its tracks.parquet into a folder.")
-        path = maps[0]
-    folder = path.parent
+    folder = path if path.is_dir() else path.parent
+    maps = sorted(folder.glob("*.xodr"))
+    if len(maps) != 1:
+        raise InputError(f"{folder}: {len(maps)} OpenDRIVE maps (*.xodr); a folder holds one map and the "
+                         "tracks.parquet of its drives. Fix: move each map and its tracks.parquet into a folder.")
+    path = maps[0]
     if not (folder / "tracks.parquet").is_file():
         raise InputError(f"{path}: no tracks.parquet beside the map. Fix: write the drives' tracks in the map's "
                          "frame as canonical Parquet (docs/tables.md) into " + str(folder / "tracks.parquet") + ".")

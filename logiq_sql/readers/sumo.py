@@ -156,10 +156,10 @@ def file_role(path: Path) -> str | None:
     or None (not a SUMO file, or unreadable: reading it later says why)."""
     try:
         with open(path, "rb") as f:
-            gzipped = f.read(2) == b"\x1f\x8b"
-        with (gzip.open if gzipped else open)(path, "rb") as f:
             head = f.read(_SNIFF_BYTES)
-    except (OSError, EOFError, zlib.error):
+        if head[:2] == b"\x1f\x8b":
+            head = _gunzip_head(head)
+    except (OSError, zlib.error):
         return None
     if head[:4] == b"PAR1":
         try:
@@ -167,13 +167,25 @@ def file_role(path: Path) -> str | None:
         except Exception:  # polars raises several types for corrupt files
             return None
         return "fcd" if names & {"timestep_time", "time"} and names & {"vehicle_x", "x"} else None
-    root = _ROOT_TAG.search(_PI.sub(b"", _COMMENT.sub(b"", head)))
+    text = _PI.sub(b"", _COMMENT.sub(b"", head))
+    root = _ROOT_TAG.search(text.split(b"<!--")[0])  # a comment longer than the head hides the root: unknown
     if root is None:
         return None
     tag = root.group(1).decode(errors="replace")
     if tag in ("configuration", "sumoConfiguration") and (path.name.endswith(".sumocfg") or b"net-file" in head):
         return "config"
     return ROLES.get(tag)
+
+
+def _gunzip_head(raw: bytes) -> bytes:
+    """Up to ``_SNIFF_BYTES`` of the text at the start of gzip data, across gzip members (SUMO writes several);
+    a truncated file still shows its root element."""
+    out = b""
+    while raw and len(out) < _SNIFF_BYTES:
+        member = zlib.decompressobj(16 + zlib.MAX_WBITS)
+        out += member.decompress(raw, _SNIFF_BYTES - len(out))
+        raw = member.unused_data if member.eof else b""
+    return out
 
 
 def run_files(folder: Path) -> dict[str, list[Path]]:
