@@ -128,10 +128,12 @@ def test_ingest_accounts_for_good_truncated_and_corrupt_traces(tmp_path):
         drives = {r[0]: r[1:] for r in con.sql(
             "select drive_id, status, ego_actor_id, reject_reason from drive_inputs").fetchall()}
         per_drive = dict(con.sql("select drive_id, count(*) from tracks group by 1").fetchall())
+        statuses = dict(con.sql("select drive_id, status from drives").fetchall())
     assert drives["good"][:2] == ("ingested", "1")
     assert drives["cut"][0] == drives["garbage"][0] == "rejected"
     assert str(cut) in drives["cut"][2] and str(bad) in drives["garbage"][2]
     assert per_drive == {"good": 4 * STEPS}  # nothing of the broken traces was written
+    assert statuses == {"good": "not_matched", "cut": "rejected", "garbage": "rejected"}
 
 
 def test_the_map_the_trace_references_is_read(tmp_path):
