@@ -117,3 +117,12 @@ def test_a_small_truncated_gzip_fcd_is_still_found_and_reported_as_truncated(tmp
     assert file_role(run / "trace.gz") == "fcd"
     with pytest.raises(InputError, match=r"trace.gz: cannot be read to the end .* the file is truncated"):
         list(read_sumo(run))
+
+
+def test_only_sumo_configurations_count_as_configurations(tmp_path):
+    netccfg = tmp_path / "build.cfg"
+    netccfg.write_text('<configuration><input><sumo-net-file value="a.net.xml"/></input></configuration>')
+    sumocfg = tmp_path / "run.cfg"  # not named .sumocfg: its <net-file> option says what it is
+    sumocfg.write_text('<!-- <net> in a comment --><configuration><input><net-file value="a.net.xml"/></input>'
+                       '</configuration>')
+    assert (file_role(netccfg), file_role(sumocfg)) == (None, "config")

@@ -149,6 +149,7 @@ _CONFIG_ROLES = {"net-file": "network", "route-files": "routes", "additional-fil
 _SNIFF_BYTES = 1 << 16  # enough for netconvert's header comment before the root element
 _ROOT_TAG = re.compile(rb"<([A-Za-z_][\w.:-]*)")
 _PI = re.compile(rb"<\?.*?\?>|<!DOCTYPE[^>]*>", re.DOTALL)
+_NET_FILE = re.compile(rb"<net-file[\s/>]")  # sumo's option (netconvert's configurations have sumo-net-file)
 
 
 def file_role(path: Path) -> str | None:
@@ -172,7 +173,7 @@ def file_role(path: Path) -> str | None:
     if root is None:
         return None
     tag = root.group(1).decode(errors="replace")
-    if tag in ("configuration", "sumoConfiguration") and (path.name.endswith(".sumocfg") or b"net-file" in head):
+    if tag in ("configuration", "sumoConfiguration") and (path.name.endswith(".sumocfg") or _NET_FILE.search(text)):
         return "config"
     return ROLES.get(tag)
 
