@@ -31,7 +31,7 @@ def _ground_truth(i: int, map_reference: str = "") -> GroundTruth:
     gt.host_vehicle_id.value = 1
     gt.map_reference = map_reference
 
-    def add(oid, otype, x, y, yaw, v, size, vclass=None, role=None, velocity=True):
+    def add(oid, otype, x, y, yaw, v, size, vclass=None, role=None, velocity=True, orientation=True):
         mo = gt.moving_object.add()
         mo.id.value = oid
         mo.type = otype
@@ -40,7 +40,9 @@ def _ground_truth(i: int, map_reference: str = "") -> GroundTruth:
         if role is not None:
             mo.vehicle_classification.role = role
         b = mo.base
-        b.position.x, b.position.y, b.orientation.yaw = x, y, yaw
+        b.position.x, b.position.y = x, y
+        if orientation:
+            b.orientation.yaw = yaw
         b.dimension.length, b.dimension.width, b.dimension.height = size
         if velocity:
             b.velocity.x, b.velocity.y = v * math.cos(yaw), v * math.sin(yaw)
@@ -52,6 +54,7 @@ def _ground_truth(i: int, map_reference: str = "") -> GroundTruth:
     add(2, MO.TYPE_VEHICLE, 130 + 8 * t, 200.0, 0.0, 8.0, (12.0, 2.5, 3.0), VC.TYPE_BUS)
     add(3, MO.TYPE_PEDESTRIAN, 90.0, 190 + 1.2 * t, math.pi / 2, 1.2, (0.5, 0.6, 1.8), velocity=False)
     add(4, MO.TYPE_VEHICLE, 60 - 15 * t, 210.0, math.pi, 15.0, (0, 0, 0), VC.TYPE_CAR, VC.ROLE_POLICE)
+    add(5, MO.TYPE_ANIMAL, 70.0 + 2 * t, 230.0, 0.0, 2.0, (1.0, 0.4, 0.8), orientation=False)
     return gt
 
 
@@ -71,7 +74,7 @@ def test_a_ground_truth_trace_becomes_tracks(tmp_path):
     (drive,) = read_osi(_gt_trace(tmp_path / "drive_a.osi"))
     tracks = drive.tracks.sort("actor_id", "frame")
     assert (drive.drive_id, drive.source_format, drive.ego_actor_id) == ("drive_a", "osi", "1")
-    assert drive.dt_s == pytest.approx(DT_S) and tracks.height == 4 * STEPS
+    assert drive.dt_s == pytest.approx(DT_S) and tracks.height == 5 * STEPS
     by_actor = {a: rows for (a,), rows in tracks.group_by("actor_id")}
     ego = by_actor["1"].sort("frame")
     assert ego["is_ego"].all() and not tracks.filter(pl.col("actor_id") != "1")["is_ego"].any()
@@ -84,11 +87,13 @@ def test_a_ground_truth_trace_becomes_tracks(tmp_path):
     assert ego["accel_mps2"].to_list() == pytest.approx([0.5] * STEPS)
     assert (ego["length_m"][0], ego["width_m"][0]) == pytest.approx((4.6, 1.9))
     kinds = {a: rows["kind"][0] for a, rows in by_actor.items()}
-    assert kinds == {"1": "vehicle", "2": "bus", "3": "person", "4": "emergency_vehicle"}
+    assert kinds == {"1": "vehicle", "2": "bus", "3": "person", "4": "emergency_vehicle", "5": "animal"}
     walker, police = by_actor["3"], by_actor["4"]
     assert walker["speed_mps"].is_null().all()  # no velocity in the message: derived at ingest
     assert police["length_m"].is_null().all()  # dimension 0: the kind's default at ingest
     assert police["speed_mps"][0] == pytest.approx(15.0)  # heading pi, velocity -x: forward
+    animal = by_actor["5"]  # a velocity but no orientation: heading and speed unknown, derived at ingest
+    assert animal["heading_rad"].is_null().all() and animal["speed_mps"].is_null().all()
 
 
 def test_a_sensor_view_trace_reads_its_global_ground_truth(tmp_path):
@@ -132,7 +137,7 @@ def test_ingest_accounts_for_good_truncated_and_corrupt_traces(tmp_path):
     assert drives["good"][:2] == ("ingested", "1")
     assert drives["cut"][0] == drives["garbage"][0] == "rejected"
     assert str(cut) in drives["cut"][2] and str(bad) in drives["garbage"][2]
-    assert per_drive == {"good": 4 * STEPS}  # nothing of the broken traces was written
+    assert per_drive == {"good": 5 * STEPS}  # nothing of the broken traces was written
     assert statuses == {"good": "not_matched", "cut": "rejected", "garbage": "rejected"}
 
 

@@ -19,8 +19,8 @@ Drive
 Tracks, one row per ``moving_object`` per message
     actor_id = ``id.value``; x_m, y_m = ``base.position`` (OSI: the centre of the bounding box, in the global
     frame); heading_rad = ``base.orientation.yaw``; speed_mps and accel_mps2 = ``base.velocity`` and
-    ``base.acceleration`` (global vectors) projected on the heading (NULL when the message has none: derived at
-    ingest); length_m, width_m = ``base.dimension`` (NULL when 0 or absent: the kind's default).
+    ``base.acceleration`` (global vectors) projected on the heading (NULL when the message has no such vector or
+    no orientation: derived at ingest); length_m, width_m = ``base.dimension`` (NULL when 0 or absent: the kind's default).
     kind (``kind_of``): TYPE_PEDESTRIAN -> person, TYPE_ANIMAL -> animal, TYPE_OTHER / TYPE_UNKNOWN -> object;
     TYPE_VEHICLE by ``vehicle_classification.type`` (``VEHICLE_KINDS``), and a vehicle whose role is ambulance,
     fire or police -> emergency_vehicle. Stationary objects, lanes and signals of the trace are not read.
@@ -195,13 +195,12 @@ def read_osi(path: str | Path) -> Iterator[DriveData]:
         for obj in gt.moving_object:
             base, vc = obj.base, obj.vehicle_classification
             key = (obj.type, vc.type, vc.role)
-            velocity = base.velocity if base.HasField("velocity") else None
-            acceleration = base.acceleration if base.HasField("acceleration") else None
+            v = (base.velocity.x, base.velocity.y) if base.HasField("velocity") else (None, None)
+            a = (base.acceleration.x, base.acceleration.y) if base.HasField("acceleration") else (None, None)
             for append, value in zip(put, (
                     obj.id.value, kinds.get(key) or kinds.setdefault(key, kind_of(obj)), t_ns, base.position.x,
-                    base.position.y, base.orientation.yaw if base.HasField("orientation") else None,
-                    velocity and velocity.x, velocity and velocity.y, acceleration and acceleration.x,
-                    acceleration and acceleration.y, base.dimension.length, base.dimension.width), strict=True):
+                    base.position.y, base.orientation.yaw if base.HasField("orientation") else None, *v, *a,
+                    base.dimension.length, base.dimension.width), strict=True):
                 append(value)
     if not messages:
         raise InputError(f"{path}: no OSI GroundTruth or SensorView message. Fix: pass a trace that has them.")
@@ -210,9 +209,9 @@ def read_osi(path: str | Path) -> Iterator[DriveData]:
                          "drive has one ego. Fix: split the trace per host vehicle.")
     raw = pl.DataFrame(cols, schema=_RAW)
     del cols, put
-    yaw = pl.col("heading_rad").fill_null(0.0)
+    yaw = pl.col("heading_rad")
 
-    def along(x: str, y: str) -> pl.Expr:  # a global vector projected on the heading (NULL when not given)
+    def along(x: str, y: str) -> pl.Expr:  # a global vector projected on the heading (NULL when either is absent)
         return pl.col(x) * yaw.cos() + pl.col(y) * yaw.sin()
 
     rows = raw.select(
