@@ -130,7 +130,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_export_xosc(args: argparse.Namespace) -> int:
     from logiq_sql.export.xosc import export_xosc
 
-    done = export_xosc(args.db, args.match_id, args.out)
+    done = export_xosc(args.db, args.match_id, args.out, convert_map=args.convert_map)
     vertices = ", ".join(f"{who} {n}" for who, n in done.vertices.items())
     print(f"OpenSCENARIO written to {done.path.resolve()} (trajectory vertices: {vertices}; {done.map_reference})")
     return EXIT_OK
@@ -153,6 +153,9 @@ def add_export_parser(sub) -> None:
     x.add_argument("match_id", metavar="MATCH_ID", help="matches.match_id")
     x.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
     x.add_argument("--out", required=True, metavar="FILE", help="the .xosc file to write")
+    x.add_argument("--convert-map", action="store_true",
+                   help="for a drive on a SUMO network (still in its run folder): write the network as OpenDRIVE "
+                        "beside the .xosc with netconvert (the [sumo] extra) and reference it")
     x.set_defaults(func=cmd_export_xosc)
     o = kinds.add_parser("openlabel", help="one ASAM OpenLABEL 1.0 JSON file per drive: tags, objects, phases, "
                                            "KPIs", epilog=EPILOG)

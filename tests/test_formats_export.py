@@ -162,3 +162,42 @@ def test_openlabel_file_names_never_collide(tmp_path):
         validate_openlabel(f)
     names = {json.loads(f.read_text())["openlabel"]["metadata"]["name"] for f in files}
     assert names == {"a/b", "a_b"}
+
+
+def test_xosc_of_a_sumo_match_can_carry_its_network_as_opendrive(tmp_path):
+    """The junction run's first 60 s: a follower_vehicle match exported with --convert-map references the
+    network written as OpenDRIVE, and every trajectory vertex lies on a lane of that OpenDRIVE map (same frame)."""
+    pytest.importorskip("sumo", reason="Eclipse SUMO is not installed: pip install 'logiq-sql[sumo]'")
+    import gzip
+    import shutil
+
+    import shapely
+
+    from logiq_sql.readers.opendrive import xodr_map
+
+    junction = Path(__file__).parent / "data" / "sumo" / "junction_s1"
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("network.net.xml.gz", "routes.rou.xml"):
+        shutil.copy(junction / name, run / name)
+    fcd = gzip.decompress((junction / "fcd.xml.gz").read_bytes())
+    (run / "fcd.xml").write_bytes(fcd[: fcd.index(b'<timestep time="60.00"')] + b"</fcd-export>\n")
+    db = tmp_path / "sumo.duckdb"
+    assert ingest("sumo", [run], db).drives == 1
+    match(db, scenarios=[FOLLOWER])
+    with duckdb.connect(str(db), read_only=True) as con:
+        match_id = con.sql("select match_id from matches order by match_id limit 1").fetchall()[0][0]
+    plain, converted = tmp_path / "plain.xosc", tmp_path / "out" / "replay.xosc"
+    export_xosc(db, match_id, plain)
+    assert ET.parse(plain).getroot().find("RoadNetwork/LogicFile") is None
+    assert main(["export", "xosc", match_id, "--db", str(db), "--out", str(converted), "--convert-map"]) == 0
+    validate_xosc(converted)
+    root = ET.parse(converted).getroot()
+    assert root.find("RoadNetwork/LogicFile").get("filepath") == "replay.xodr"
+    _, (lanes, *_) = xodr_map(converted.with_suffix(".xodr"))
+    area = shapely.union_all(shapely.from_wkt(lanes["polygon_wkt"].to_numpy()))
+    points = [shapely.Point(float(p.get("x")), float(p.get("y"))) for p in root.iter("WorldPosition")]
+    assert len(points) > 20
+    off = max(area.distance(p) for p in points)
+    print(f"vertices {len(points)}, farthest from a lane {off:.3f} m")
+    assert off < 0.5, off  # box centres of cars in their lanes

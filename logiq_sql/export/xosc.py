@@ -10,7 +10,8 @@ Mapping (docs/formats.md):
     recorded frame from start_frame to end_frame (time = t_s - start_s, WorldPosition x, y, h), absolute timing,
     following mode ``position``; it starts at simulation time 0. The storyboard stops at the match's duration.
     RoadNetwork: LogicFile = the drive's OpenDRIVE map when it came from an .xodr (path relative to the .xosc);
-    for other maps (SUMO, CommonRoad, ...) no LogicFile: the FileHeader description names the map_id instead.
+    with ``convert_map``, a SUMO drive's network converted to OpenDRIVE beside the .xosc; for other maps
+    (CommonRoad, ...) no LogicFile: the FileHeader description names the map_id instead.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ import polars as pl
 
 from logiq_sql.errors import InputError
 from logiq_sql.export import OPENSCENARIO_XSD, open_db, xodr_file
+from logiq_sql.readers.opendrive import netconvert
+from logiq_sql.readers.sumo import network_of
 
 # kind -> (entity element, category attribute, category)
 ENTITY = {
@@ -105,8 +108,9 @@ def _follow(story: ET.Element, name: str, rows: list[dict], start_s: float) -> N
     _time_trigger(event, "StartTrigger", f"{name}_at_start", "greaterOrEqual", 0.0)
 
 
-def export_xosc(db_path: str | Path, match_id: str, out: str | Path) -> XoscExport:
-    """Write the OpenSCENARIO file of one match."""
+def export_xosc(db_path: str | Path, match_id: str, out: str | Path, convert_map: bool = False) -> XoscExport:
+    """Write the OpenSCENARIO file of one match. ``convert_map``: a drive on a SUMO network gets that network
+    written as OpenDRIVE beside the .xosc (netconvert) and referenced."""
     out = Path(out)
     with open_db(db_path) as con:
         found = con.execute(
@@ -128,9 +132,11 @@ def export_xosc(db_path: str | Path, match_id: str, out: str | Path) -> XoscExpo
                              f"{start_f}..{end_f} of drive '{drive}'; a trajectory needs two. Fix: re-ingest the "
                              "drive and rerun match.")
     xodr = xodr_file(map_id, source)
-    root = ET.Element("OpenSCENARIO")
     map_note = (f"map: OpenDRIVE {xodr.name}" if xodr else
                 f"map: {map_id or 'none'} (not an OpenDRIVE file; no LogicFile)")
+    if xodr is None and convert_map:
+        xodr, map_note = _sumo_map_as_xodr(map_id, Path(source), out) or (None, map_note)
+    root = ET.Element("OpenSCENARIO")
     _el(root, "FileHeader", revMajor=str(REV[0]), revMinor=str(REV[1]), author="logiq-sql",
         date=datetime.datetime.now(datetime.UTC).replace(microsecond=0).isoformat(),
         description=f"{scenario} match {match_id}: drive {drive}, ego {ego}, actor {actor}, "
@@ -158,6 +164,19 @@ def export_xosc(db_path: str | Path, match_id: str, out: str | Path) -> XoscExpo
     out.parent.mkdir(parents=True, exist_ok=True)
     ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
     return XoscExport(out, match_id, {who: len(rows[who]) for who in rows}, reference or map_note)
+
+
+def _sumo_map_as_xodr(map_id: str | None, run: Path, out: Path) -> tuple[Path, str] | None:
+    """A SUMO drive's network written as OpenDRIVE beside ``out``; netconvert keeps the network's coordinates, the
+    frame of the drive's tracks. None when the drive's map is not a SUMO network still in its run folder."""
+    net = network_of(map_id, run) if map_id and map_id.startswith("sumo-") else None
+    if net is None:
+        return None
+    xodr = out.with_suffix(".xodr")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    netconvert(["--sumo-net-file", str(net), "--opendrive-output", str(xodr)], net, "write the network as OpenDRIVE",
+               "check that the network opens in SUMO (sumo-gui).")
+    return xodr, f"map: OpenDRIVE {xodr.name}, converted by netconvert from the SUMO network {net} ({map_id})"
 
 
 def validate_xosc(path: str | Path) -> None:

@@ -55,20 +55,23 @@ def xodr_map(path: Path) -> tuple[str, tuple[pl.DataFrame, ...]]:
 
 
 def _convert(path: Path, map_id: str) -> tuple[pl.DataFrame, ...]:
-    bin_dir = sumo_bin()
     with tempfile.TemporaryDirectory(prefix="logiq_xodr_") as tmp:
         net = Path(tmp) / "map.net.xml"
-        argv = [str(bin_dir / "netconvert"), "--opendrive-files", str(path.resolve()), "--output-file", str(net),
-                *NETCONVERT_OPTIONS]
-        # SUMO_HOME set: netconvert finds its own type maps and stays quiet about them
-        env = {**os.environ, "SUMO_HOME": str(bin_dir.parent)}
-        proc = subprocess.run(argv, capture_output=True, text=True, check=False, env=env)
-        errors = [line for line in proc.stderr.splitlines() if line.startswith("Error")]
-        if proc.returncode != 0 or errors or not net.is_file():
-            tail = "\n".join((errors or proc.stderr.splitlines())[-5:])
-            raise InputError(f"{path}: netconvert could not convert the OpenDRIVE map (exit code "
-                             f"{proc.returncode}):\n{tail}\nFix: check the map with an OpenDRIVE validator.")
+        netconvert(["--opendrive-files", str(path.resolve()), "--output-file", str(net), *NETCONVERT_OPTIONS], path,
+                   "convert the OpenDRIVE map", "check the map with an OpenDRIVE validator.")
         return network_tables(net, map_id, undo_offset=True)
+
+
+def netconvert(args: list[str], source: Path, what: str, fix: str) -> None:
+    """Run SUMO's netconvert; its errors become an InputError naming ``source``."""
+    bin_dir = sumo_bin()
+    # SUMO_HOME set: netconvert finds its own type maps and stays quiet about them
+    env = {**os.environ, "SUMO_HOME": str(bin_dir.parent)}
+    proc = subprocess.run([str(bin_dir / "netconvert"), *args], capture_output=True, text=True, check=False, env=env)
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("Error")]
+    if proc.returncode != 0 or errors:
+        tail = "\n".join((errors or proc.stderr.splitlines())[-5:])
+        raise InputError(f"{source}: netconvert could not {what} (exit code {proc.returncode}):\n{tail}\nFix: {fix}")
 
 
 def with_map(drive: DriveData, map_id: str, tables: tuple[pl.DataFrame, ...]) -> DriveData:

@@ -465,8 +465,20 @@ def _wkt(g):
 
 def _net(path: Path) -> tuple[str, tuple[pl.DataFrame, ...]]:
     raw = _read_bytes(path)
-    map_id = "sumo-" + hashlib.sha1(_COMMENT.sub(b"", raw)).hexdigest()[:16]
-    return map_id, network_tables(path, map_id, raw=raw)
+    return _map_id(raw), network_tables(path, _map_id(raw), raw=raw)
+
+
+def _map_id(raw: bytes) -> str:
+    return "sumo-" + hashlib.sha1(_COMMENT.sub(b"", raw)).hexdigest()[:16]
+
+
+def network_of(map_id: str, folder: Path) -> Path | None:
+    """The network a SUMO drive's map was read from: its run folder's network, if its text still gives map_id."""
+    try:
+        nets = run_files(folder).get("network", []) if folder.is_dir() else []
+    except InputError:
+        return None
+    return next((net for net in nets if _map_id(_read_bytes(net)) == map_id), None)
 
 
 def network_tables(path: Path, map_id: str, raw: bytes | None = None,
