@@ -9,7 +9,7 @@ Mapping (docs/formats.md):
         num length_m and width_m (the first row's).
     actions: one per match (type = the scenario, frame interval = start_frame..end_frame, action_data: text
         match_id, ego_id, actor_id; num start_s, end_s; then every KPI of the match, a num per numeric KPI, a text
-        per enum/string KPI, NULL KPIs left out) and one per phase (type = the phase name, frame interval = the
+        per enum/string KPI, a boolean per boolean one, NULL KPIs left out) and one per phase (type = the phase name, frame interval = the
         phase's, action_data: text match_id and scenario, num phase_index).
     relations: per match, ``is_ego_of`` (ego object -> match action) and ``is_actor_of`` (actor object -> match
         action), over the match's frames.
@@ -34,22 +34,19 @@ def _interval(start: int, end: int) -> dict:
     return {"frame_start": int(start), "frame_end": int(end)}
 
 
-def _data(text: dict, num: dict) -> dict:
-    out = {}
-    texts = [{"name": k, "val": str(v)} for k, v in text.items() if v is not None]
-    nums = [{"name": k, "val": float(v)} for k, v in num.items() if v is not None and math.isfinite(v)]
-    if texts:
-        out["text"] = texts
-    if nums:
-        out["num"] = nums
+def _data(values: dict) -> dict:
+    """OpenLABEL element data of named values: a text per string, a boolean per bool, a num per number; NULL and
+    non-finite values left out."""
+    out: dict[str, list] = {}
+    for name, v in values.items():
+        if isinstance(v, bool):
+            out.setdefault("boolean", []).append({"name": name, "val": v})
+        elif isinstance(v, int | float):
+            if math.isfinite(v):
+                out.setdefault("num", []).append({"name": name, "val": float(v)})
+        elif v is not None:
+            out.setdefault("text", []).append({"name": name, "val": str(v)})
     return out
-
-
-def _kpi_data(kpi: dict) -> dict:
-    text = {k: v for k, v in kpi.items() if k not in _MATCH_COLUMNS and isinstance(v, str)}
-    num = {k: v for k, v in kpi.items() if k not in _MATCH_COLUMNS and isinstance(v, int | float)
-           and not isinstance(v, bool)}
-    return _data(text, num)
 
 
 def export_openlabel(db_path: str | Path, out: str | Path, drives: list[str] | None = None) -> list[Path]:
@@ -123,23 +120,19 @@ def _drive_label(drive: dict, frame_range, actors: pl.DataFrame, matches: pl.Dat
         objects[str(i)] = {
             "name": a["actor_id"], "type": a["kind"],
             "frame_intervals": [_interval(iv["frame_start"], iv["frame_end"]) for iv in a["intervals"]],
-            "object_data": {**_data({"actor_id": a["actor_id"]}, {"length_m": a["length_m"],
-                                                                  "width_m": a["width_m"]}),
-                            "boolean": [{"name": "is_ego", "val": bool(a["is_ego"])}]},
+            "object_data": _data({"actor_id": a["actor_id"], "length_m": a["length_m"], "width_m": a["width_m"],
+                                  "is_ego": bool(a["is_ego"])}),
         }
     if objects:
         label["objects"] = objects
     actions, relations = {}, {}
     for m in matches.to_dicts():
         uid = str(len(actions))
-        data = _data({"match_id": m["match_id"], "ego_id": m["ego_id"], "actor_id": m["actor_id"]},
-                     {"start_s": m["start_s"], "end_s": m["end_s"]})
-        kpi = _kpi_data(kpi_by_match.get(m["match_id"], {}))
-        for kind in ("text", "num"):
-            data.setdefault(kind, []).extend(kpi.get(kind, []))
+        kpi = {k: v for k, v in kpi_by_match.get(m["match_id"], {}).items() if k not in _MATCH_COLUMNS}
+        data = _data({"match_id": m["match_id"], "ego_id": m["ego_id"], "actor_id": m["actor_id"],
+                      "start_s": m["start_s"], "end_s": m["end_s"], **kpi})
         actions[uid] = {"name": f"{m['scenario']} {m['match_id']}", "type": m["scenario"],
-                        "frame_intervals": [_interval(m["start_frame"], m["end_frame"])],
-                        "action_data": {k: v for k, v in data.items() if v}}
+                        "frame_intervals": [_interval(m["start_frame"], m["end_frame"])], "action_data": data}
         for predicate, who in (("is_ego_of", m["ego_id"]), ("is_actor_of", m["actor_id"])):
             if who in uid_of:
                 relations[str(len(relations))] = {
@@ -151,8 +144,8 @@ def _drive_label(drive: dict, frame_range, actors: pl.DataFrame, matches: pl.Dat
             actions[str(len(actions))] = {
                 "name": f"{m['scenario']} {p['phase']} {m['match_id']}", "type": p["phase"],
                 "frame_intervals": [_interval(p["start_frame"], p["end_frame"])],
-                "action_data": _data({"match_id": m["match_id"], "scenario": m["scenario"]},
-                                     {"phase_index": p["phase_index"]})}
+                "action_data": _data({"match_id": m["match_id"], "scenario": m["scenario"],
+                                      "phase_index": p["phase_index"]})}
     if actions:
         label["actions"] = actions
     if relations:
