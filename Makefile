@@ -9,7 +9,7 @@ DEMO_DB := demo/demo.duckdb
 $(BIN)/logiq-sql: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test,sumo,spark]'
+	$(BIN)/pip install --quiet -e '.[test,sumo,spark,formats]'
 	@touch $@
 
 venv: $(BIN)/logiq-sql

@@ -127,6 +127,45 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_export_xosc(args: argparse.Namespace) -> int:
+    from logiq_sql.export.xosc import export_xosc
+
+    done = export_xosc(args.db, args.match_id, args.out, convert_map=args.convert_map)
+    vertices = ", ".join(f"{who} {n}" for who, n in done.vertices.items())
+    print(f"OpenSCENARIO written to {done.path.resolve()} (trajectory vertices: {vertices}; {done.map_reference})")
+    return EXIT_OK
+
+
+def cmd_export_openlabel(args: argparse.Namespace) -> int:
+    from logiq_sql.export.openlabel import export_openlabel
+
+    files = export_openlabel(args.db, args.out, drives=args.drive or None)
+    print(f"{len(files)} OpenLABEL file(s) written to {Path(args.out).resolve()}")
+    return EXIT_OK
+
+
+def add_export_parser(sub) -> None:
+    p = sub.add_parser("export", help="write a match as OpenSCENARIO or the drives' matches as OpenLABEL",
+                       epilog=EPILOG, description="Export into standard formats (mappings: docs/formats.md).")
+    kinds = p.add_subparsers(dest="kind", required=True, metavar="FORMAT")
+    x = kinds.add_parser("xosc", help="one match as an OpenSCENARIO 1.3 file: ego and actor replay their tracks",
+                         epilog=EPILOG)
+    x.add_argument("match_id", metavar="MATCH_ID", help="matches.match_id")
+    x.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
+    x.add_argument("--out", required=True, metavar="FILE", help="the .xosc file to write")
+    x.add_argument("--convert-map", action="store_true",
+                   help="for a drive on a SUMO network (still in its run folder): write the network as OpenDRIVE "
+                        "beside the .xosc with netconvert (the [sumo] extra) and reference it")
+    x.set_defaults(func=cmd_export_xosc)
+    o = kinds.add_parser("openlabel", help="one ASAM OpenLABEL 1.0 JSON file per drive: tags, objects, phases, "
+                                           "KPIs", epilog=EPILOG)
+    o.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
+    o.add_argument("--out", required=True, metavar="DIR", help="folder to write {drive_id}.json into")
+    o.add_argument("--drive", action="append", metavar="ID", help="only these drives (repeatable; default all "
+                                                                   "ingested drives)")
+    o.set_defaults(func=cmd_export_openlabel)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
@@ -136,10 +175,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("ingest", help="read drives into a DuckDB file", epilog=EPILOG,
                        description="Read drives (files or folders of them) into the canonical tables of a DuckDB "
                                    "file. Re-ingesting a drive replaces it.")
-    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo", "av2"],
+    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi"],
                    help="commonroad: CommonRoad XML (.xml, .xml.gz); scenarionet: ScenarioNet .pkl; "
                         "parquet: canonical tables (see docs/tables.md); sumo: SUMO run folders (docs/sumo.md); "
-                        "av2: Argoverse 2 sensor-log and motion-forecasting folders")
+                        "av2: Argoverse 2 sensor-log and motion-forecasting folders; opendrive: an .xodr map with "
+                        "tracks.parquet beside it; osi: ASAM OSI traces (.osi, .mcap), with an .xodr beside them "
+                        "as the map (docs/formats.md)")
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
@@ -238,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_label_parser(sub)
     add_evaluate_parser(sub)
+    add_export_parser(sub)
     return parser
 
 

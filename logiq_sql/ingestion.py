@@ -25,10 +25,11 @@ from logiq_sql.readers.sumo import run_folders
 from logiq_sql.sql import query_text, recount_coverage
 from logiq_sql.timing import stage
 
-FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2")
+FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi")
 
 
-_SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",)}
+_SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",),
+             "opendrive": (".xodr",), "osi": (".osi", ".mcap")}
 
 
 def _reader(fmt: str) -> Callable[[Path], Iterable[DriveData]]:

@@ -8,7 +8,12 @@ Drive
     map_id = ``sumo-`` + the first 16 hex digits of the SHA-1 of the network file's text without its XML comments
     (netconvert's header comment holds the date and input paths), so every run on one network shares one map.
 
-Tracks, from ``fcd*.xml``, ``fcd*.xml.gz`` or SUMO's native ``fcd*.parquet`` (one of them per folder)
+Files are found by content, never by name: a ``.sumocfg`` in the folder names the network, route, additional
+    and output files (``run_files``); files it does not name are recognised by their root element (``<net>``,
+    ``<routes>``, ``<additional>``, ``<fcd-export>``, ``<tlsStates>``, ...) or, for Parquet, by SUMO's FCD columns.
+    Plain or gzipped, any file name (``net.xml.gz``, ``my_run.xml``) works.
+
+Tracks, from the FCD output: XML (plain or gzipped) or SUMO's native Parquet (one per folder)
     One row per ``<vehicle>`` or ``<person>`` element per ``<timestep>``; frame = round(time / dt_s),
     t_s = the simulation time (so SUMO's own outputs line up with the tracks). SUMO's x, y are the centre of the
     *front bumper* and its angle is in navigation degrees (0 = north, clockwise): heading_rad =
@@ -18,7 +23,7 @@ Tracks, from ``fcd*.xml``, ``fcd*.xml.gz`` or SUMO's native ``fcd*.parquet`` (on
     the tracks (``read_fcd`` returns them for evaluation); lanes are found from x/y and the map at ingest.
     Rows whose type no route file defines are dropped and counted in rows_rejected with the type ids.
 
-Vehicle types, from ``*.rou.xml[.gz]`` (``<vType>`` anywhere, ``<vTypeDistribution>`` members included)
+Vehicle types, from the route and additional files (``<vType>`` anywhere, ``<vTypeDistribution>`` members included)
     length/width default per vClass to SUMO 1.28's values (``VCLASS_SIZE_M``, read from SUMO itself); a type
     without vClass is ``passenger``; SUMO's built-in ``DEFAULT_*TYPE`` ids are known without a route file.
     Kind by vClass (``KINDS``): passenger, private, taxi, evehicle, hov, vip, army, custom1/2, delivery -> vehicle;
@@ -26,7 +31,7 @@ Vehicle types, from ``*.rou.xml[.gz]`` (``<vType>`` anywhere, ``<vTypeDistributi
     pedestrian, wheelchair -> person; emergency, authority -> emergency_vehicle; rail, tram, ship, aircraft,
     drone, container and cable car classes (no LogIQ kind fits) -> object.
 
-Map, from ``*.net.xml[.gz]`` (exactly one per folder)
+Map, from the network (exactly one per folder)
     lanes: every lane of every edge, ``internal`` (junction) lanes included. Centre line = the lane ``shape``;
     polygon = the centre line buffered by width/2 with flat ends (width 3.2 m, SUMO's default, when absent);
     lane_type = the edge function (``normal``, ``internal``, ``crossing``, ``walkingarea``); speed_limit_mps =
@@ -42,7 +47,7 @@ Map, from ``*.net.xml[.gz]`` (exactly one per folder)
     lane and one for the internal (via) lane the link leads onto; direction = the link's turn (as above, ``t`` ->
     u_turn); x/y = the stop line (end of the incoming lane's centre line).
 
-Traffic-light states, from ``tls_states*.xml[.gz]`` (``SaveTLSStates``: ``<tlsState time id state>``)
+Traffic-light states, from the ``<tlsStates>`` file (``SaveTLSStates``: ``<tlsState time id state>``)
     Character i of ``state`` is link i: one row per light (``{tls id}:{i}``) and frame, from its first record to
     the last track frame, the last record carried forward. G and g -> green (``g`` is a *permissive* green: the
     movement must yield, e.g. a left turn to oncoming traffic), y -> yellow, r -> red, u -> red_yellow,
@@ -119,26 +124,109 @@ _TRACK_FCD_COLUMNS = ("t_s", "vehicle_id", "type_id", "x_m", "y_m", "angle_deg",
 # ------------------------------------------------------------------------------------------------ files
 
 def run_folders(path: str | Path) -> list[Path]:
-    """The run folders at or under ``path``: folders holding a network or an FCD file (a file means its folder).
+    """The run folders at or under ``path``: folders holding a ``.sumocfg``, a network or an FCD output, found by
+    content, whatever the files are named (a file means its folder).
 
-    A folder with neither is returned as it is, so that reading it says what is missing.
+    A folder with none of them is returned as it is, so that reading it says what is missing.
     """
     path = Path(path)
     if path.is_file():
         return [path.parent]
     if _is_run(path):
         return [path]
-    found = sorted({f.parent for f in path.rglob("*") if f.is_file() and _is_run_file(f.name)})
+    found = sorted(d for d in path.rglob("*") if d.is_dir() and _is_run(d))
     return found or [path]
 
 
-def _is_run_file(name: str) -> bool:
-    return name.endswith((".net.xml", ".net.xml.gz")) or (
-        name.startswith("fcd") and name.endswith((".xml", ".xml.gz", ".parquet")))
+# the root element of each SUMO file the reader and the labeller use -> its role in a run folder
+ROLES = {"net": "network", "routes": "routes", "additional": "routes", "fcd-export": "fcd",
+         "tlsStates": "tls_states", "lanechanges": "lanechange", "SSMLog": "ssm", "tripinfos": "tripinfo",
+         "collisions": "collisions"}
+# the options of a .sumocfg that name those files (comma- or space-separated lists)
+_CONFIG_ROLES = {"net-file": "network", "route-files": "routes", "additional-files": "routes",
+                 "fcd-output": "fcd", "lanechange-output": "lanechange", "tripinfo-output": "tripinfo",
+                 "collision-output": "collisions"}
+_SNIFF_BYTES = 1 << 16  # enough for netconvert's header comment before the root element
+_ROOT_TAG = re.compile(rb"<([A-Za-z_][\w.:-]*)")
+_PI = re.compile(rb"<\?.*?\?>|<!DOCTYPE[^>]*>", re.DOTALL)
+_NET_FILE = re.compile(rb"<net-file[\s/>]")  # sumo's option (netconvert's configurations have sumo-net-file)
+
+
+def file_role(path: Path) -> str | None:
+    """What a file of a run folder is, from its content: a ``ROLES`` value, ``config`` for a SUMO configuration,
+    or None (not a SUMO file, or unreadable: reading it later says why)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_SNIFF_BYTES)
+        if head[:2] == b"\x1f\x8b":
+            head = _gunzip_head(head)
+    except (OSError, zlib.error):
+        return None
+    if head[:4] == b"PAR1":
+        try:
+            names = set(pl.read_parquet_schema(path))
+        except Exception:  # polars raises several types for corrupt files
+            return None
+        return "fcd" if names & {"timestep_time", "time"} and names & {"vehicle_x", "x"} else None
+    text = _PI.sub(b"", _COMMENT.sub(b"", head))
+    root = _ROOT_TAG.search(text.split(b"<!--")[0])  # a comment longer than the head hides the root: unknown
+    if root is None:
+        return None
+    tag = root.group(1).decode(errors="replace")
+    if tag in ("configuration", "sumoConfiguration") and (path.name.endswith(".sumocfg") or _NET_FILE.search(text)):
+        return "config"
+    return ROLES.get(tag)
+
+
+def _gunzip_head(raw: bytes) -> bytes:
+    """Up to ``_SNIFF_BYTES`` of the text at the start of gzip data, across gzip members (SUMO writes several);
+    a truncated file still shows its root element."""
+    out = b""
+    while raw and len(out) < _SNIFF_BYTES:
+        member = zlib.decompressobj(16 + zlib.MAX_WBITS)
+        out += member.decompress(raw, _SNIFF_BYTES - len(out))
+        raw = member.unused_data if member.eof else b""
+    return out
+
+
+def run_files(folder: Path) -> dict[str, list[Path]]:
+    """The files of a run folder by role (``ROLES`` values). A ``.sumocfg`` in the folder names them first
+    (net-file, route-files, additional-files, fcd-output, ...; relative to the configuration); the roles it does
+    not name, or names with a file that is not there, are found by the files' root elements."""
+    files = sorted(f for f in folder.iterdir() if f.is_file() and not f.name.startswith("."))
+    roles = {f: file_role(f) for f in files}
+    configs = [f for f, role in roles.items() if role == "config"]
+    if len(configs) > 1:
+        raise InputError(f"{folder}: {len(configs)} SUMO configurations ({', '.join(f.name for f in configs)}); "
+                         "a run folder holds one run. Fix: move the others into folders of their own.")
+    named: dict[str, list[Path]] = {}
+    if configs:
+        for option, role in _config_options(configs[0]):
+            paths = [configs[0].parent / name for name in re.split(r"[,\s]+", option) if name]
+            named.setdefault(role, []).extend(p for p in paths if p.is_file())
+    found: dict[str, list[Path]] = {}
+    for f, role in roles.items():
+        if role and role != "config":
+            found.setdefault(role, []).append(f)
+    return {**found, **{role: paths for role, paths in named.items() if paths}}
+
+
+def _config_options(config: Path) -> list[tuple[str, str]]:
+    """(value, role) of every option of a .sumocfg that names a run file."""
+    try:
+        root = ET.fromstring(_read_bytes(config))
+    except ET.ParseError as exc:
+        raise InputError(f"{config}: not well-formed XML ({exc}). Fix: repair or remove the configuration.") from None
+    return [(el.get("value", el.get("v", "")), _CONFIG_ROLES[el.tag]) for el in root.iter() if el.tag in _CONFIG_ROLES]
 
 
 def _is_run(folder: Path) -> bool:
-    return folder.is_dir() and any(f.is_file() and _is_run_file(f.name) for f in folder.iterdir())
+    if not folder.is_dir():
+        return False
+    try:
+        return any(role in ("config", "network", "fcd") for role in run_files(folder))
+    except InputError:  # two configurations: a run folder, whose reading reports the clash
+        return True
 
 
 def run_file(folder: Path, patterns: tuple[str, ...], what: str, fix: str, required: bool = True) -> Path | None:
@@ -152,6 +240,24 @@ def run_file(folder: Path, patterns: tuple[str, ...], what: str, fix: str, requi
     return files[0] if files else None
 
 
+_FOUND_BY = {"network": "<net>", "fcd": "<fcd-export> or an FCD Parquet file", "tls_states": "<tlsStates>",
+             "routes": "<routes> or <additional>", "lanechange": "<lanechanges>"}
+
+
+def role_file(files: dict[str, list[Path]], folder: Path, role: str, what: str, fix: str,
+              required: bool = True) -> Path | None:
+    """The one file of ``role`` among a run folder's ``run_files`` (None if absent and not required)."""
+    found = files.get(role, [])
+    if len(found) > 1:
+        raise InputError(f"{folder}: {len(found)} {what} files ({', '.join(f.name for f in found)}); a run folder "
+                         f"holds one. Fix: move the others into folders of their own, or name the one to read in a "
+                         f".sumocfg.")
+    if not found and required:
+        raise InputError(f"{folder}: no {what} file (none named by a .sumocfg, no file whose root element is "
+                         f"{_FOUND_BY.get(role, role)}). Fix: {fix}")
+    return found[0] if found else None
+
+
 def _read_bytes(path: Path) -> bytes:
     """The whole (small) file, gunzipped when it is gzip."""
     try:
@@ -162,13 +268,15 @@ def _read_bytes(path: Path) -> bytes:
                          "complete.") from None
 
 
-def _parse_xml(path: Path, root_tag: str, raw: bytes | None = None) -> ET.Element:
+def _parse_xml(path: Path, root_tags: str | tuple[str, ...], raw: bytes | None = None) -> ET.Element:
     try:
         root = ET.fromstring(_read_bytes(path) if raw is None else raw)
     except ET.ParseError as exc:
         raise InputError(f"{path}: not well-formed XML ({exc}). Fix: regenerate the file.") from None
-    if root.tag != root_tag:
-        raise InputError(f"{path}: root element is <{root.tag}>, not <{root_tag}>; not a SUMO {root_tag} file.")
+    tags = (root_tags,) if isinstance(root_tags, str) else root_tags
+    if root.tag not in tags:
+        raise InputError(f"{path}: root element is <{root.tag}>, not <{'> or <'.join(tags)}>; not a SUMO "
+                         f"{tags[0]} file.")
     return root
 
 
@@ -244,13 +352,16 @@ def read_fcd(path: str | Path, columns: Iterable[str] = FCD_COLUMNS) -> pl.DataF
     """The raw FCD rows of a SUMO run (``FCD_COLUMNS``, SUMO's own values: x/y = front bumper, angle in
     navigation degrees; leader_id, leader_gap_m and leader_speed_mps are NULL where SUMO writes "" / -1).
 
-    ``fcd*.xml[.gz]`` is parsed line by line with vectorised Polars regexes in chunks (bounded memory);
-    ``fcd*.parquet`` is SUMO's native Parquet output (its columns prefixed ``timestep_`` / ``vehicle_``).
+    FCD XML (plain or gzipped) is parsed line by line with vectorised Polars regexes in chunks (bounded memory);
+    a Parquet file (by its magic bytes, any name) is SUMO's native Parquet output (its columns prefixed
+    ``timestep_`` / ``vehicle_``).
     ``columns`` picks a subset (t_s is always included): fewer columns parse faster.
     """
     path = Path(path)
     wanted = [c for c in _FCD if c[0] in set(columns)]
-    if path.name.endswith(".parquet"):
+    with open(path, "rb") as f:
+        parquet = f.read(4) == b"PAR1"
+    if parquet:
         return _read_fcd_parquet(path, wanted)
     raw = xml_records(path, "vehicle|person", [fcd for _, fcd, _, _ in wanted], "</fcd-export>", "timestep")
     return _typed(raw, {fcd: name for name, fcd, _, _ in wanted}, {name: dtype for name, _, _, dtype in wanted})
@@ -293,8 +404,8 @@ def read_vtypes(folder: str | Path) -> pl.DataFrame:
     """type_id, vclass, length_m, width_m, kind of every vType of the folder's route files and SUMO's built-ins."""
     folder = Path(folder)
     rows = {tid: (vclass, *VCLASS_SIZE_M[vclass]) for tid, vclass in _BUILTIN_TYPES.items()}
-    for path in sorted(folder.glob("*.rou.xml")) + sorted(folder.glob("*.rou.xml.gz")):
-        root = _parse_xml(path, "routes")
+    for path in run_files(folder).get("routes", []):
+        root = _parse_xml(path, ("routes", "additional"))
         for vt in root.iter("vType"):
             vclass = vt.get("vClass", "passenger")
             length, width = VCLASS_SIZE_M.get(vclass, VCLASS_SIZE_M["passenger"])
@@ -354,12 +465,38 @@ def _wkt(g):
 
 def _net(path: Path) -> tuple[str, tuple[pl.DataFrame, ...]]:
     raw = _read_bytes(path)
-    map_id = "sumo-" + hashlib.sha1(_COMMENT.sub(b"", raw)).hexdigest()[:16]
-    return map_id, _map(_parse_xml(path, "net", raw), map_id, path)
+    return _map_id(raw), network_tables(path, _map_id(raw), raw=raw)
 
 
-def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
-    """lanes, lane_successors, junctions, traffic_lights of a SUMO network."""
+def _map_id(raw: bytes) -> str:
+    return "sumo-" + hashlib.sha1(_COMMENT.sub(b"", raw)).hexdigest()[:16]
+
+
+def network_of(map_id: str, folder: Path) -> Path | None:
+    """The network a SUMO drive's map was read from: its run folder's network, if its text still gives map_id."""
+    try:
+        nets = run_files(folder).get("network", []) if folder.is_dir() else []
+    except InputError:
+        return None
+    return next((net for net in nets if _map_id(_read_bytes(net)) == map_id), None)
+
+
+def network_tables(path: Path, map_id: str, raw: bytes | None = None,
+                   undo_offset: bool = False) -> tuple[pl.DataFrame, ...]:
+    """lanes, lane_successors, junctions, traffic_lights of a SUMO network.
+
+    ``undo_offset``: subtract the network's ``<location netOffset>`` from every coordinate, back to the frame of
+    the source netconvert converted (an OpenDRIVE map); a SUMO run's FCD is in the shifted frame, so not there.
+    """
+    root = _parse_xml(path, "net", raw)
+    location = root.find("location")
+    offset = np.zeros(2)
+    if undo_offset and location is not None and location.get("netOffset"):
+        offset = _coords(location.get("netOffset"))[0]
+    return _map(root, map_id, path, offset)
+
+
+def _map(root: ET.Element, map_id: str, path: Path, offset: np.ndarray) -> tuple[pl.DataFrame, ...]:
     junctions = {j.get("id"): j for j in root.iter("junction") if j.get("type") != "internal"}
     lane_rows: list[dict] = []
     for edge in root.iter("edge"):
@@ -385,7 +522,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
     if not lane_rows:
         raise InputError(f"{path}: the network has no lanes.")
     try:
-        coords = [_coords(r.pop("shape")) for r in lane_rows]
+        coords = [_coords(r.pop("shape")) - offset for r in lane_rows]
         lines = shapely.linestrings(np.concatenate(coords), indices=np.repeat(np.arange(len(coords)),
                                                                                [len(c) for c in coords]))
     except (ValueError, shapely.errors.GEOSException) as exc:
@@ -411,7 +548,7 @@ def _map(root: ET.Element, map_id: str, path: Path) -> tuple[pl.DataFrame, ...]:
 
     junction_rows = []
     for jid, j in junctions.items():
-        outline = _coords(j.get("shape", ""))
+        outline = _coords(j.get("shape", "")) - offset
         if j.get("type") == "dead_end" or len(outline) < 3:
             continue
         parts = [g for g in shapely.get_parts(shapely.make_valid(shapely.Polygon(outline)))
@@ -461,11 +598,12 @@ def read_sumo(path: str | Path) -> Iterator[DriveData]:
 def _read_run(folder: Path) -> DriveData:
     if not folder.is_dir():
         raise InputError(f"{folder}: not a folder; pass a SUMO run folder (network, route files, FCD).")
-    net = run_file(folder, ("*.net.xml", "*.net.xml.gz"), "SUMO network",
-               "copy the network the run used (e.g. network.net.xml.gz) into the folder.")
-    fcd_path = run_file(folder, ("fcd*.xml", "fcd*.xml.gz", "fcd*.parquet"), "FCD",
-                    "run sumo with --fcd-output fcd.xml.gz (logiq-sql simulate does).")
-    tls_path = run_file(folder, ("tls_states*.xml", "tls_states*.xml.gz"), "signal state", "", required=False)
+    files = run_files(folder)
+    net = role_file(files, folder, "network", "SUMO network",
+                    "copy the network the run used (any name, e.g. network.net.xml.gz) into the folder.")
+    fcd_path = role_file(files, folder, "fcd", "FCD",
+                         "run sumo with --fcd-output fcd.xml.gz (logiq-sql simulate does).")
+    tls_path = role_file(files, folder, "tls_states", "signal state", "", required=False)
     map_id, (lanes, successors, junctions, lights) = _net(net)
     vtypes = read_vtypes(folder)
     fcd = read_fcd(fcd_path, _TRACK_FCD_COLUMNS)
