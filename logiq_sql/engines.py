@@ -29,7 +29,7 @@ import polars as pl
 import sqlglot
 from sqlglot import exp
 
-from logiq_sql import schema
+from logiq_sql import dataset, schema
 from logiq_sql.errors import LogiqError
 from logiq_sql.sql import _literal, _used, bind, materialise, query_text
 
@@ -182,25 +182,12 @@ def spark_session(master: str | None = None):
 
 
 def export_parquet(con: duckdb.DuckDBPyConnection, folder: str | Path) -> Path:
-    """The canonical input tables of a DuckDB file as Parquet folders ``<folder>/<table>/``; per-drive tables
-    partitioned by drive_id (``drive_id=<id>/``), so a cluster reads only the drives it is given."""
+    """The canonical input tables of a DuckDB file as a dataset (logiq_sql/dataset.py) in ``folder``, whose
+    table folders are replaced: per-drive tables partitioned by drive_id, so a cluster reads only its drives."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     for table in INPUT_TABLES:
-        target = folder / table.name
-        if target.exists():
-            shutil.rmtree(target)
-        target.mkdir()
-        cols = ", ".join(table.column_names)
-        options = "format parquet" + (", partition_by (drive_id)" if table.name in PARTITIONED_BY_DRIVE else "")
-        path = str(target) if table.name in PARTITIONED_BY_DRIVE else str(target / "part-0.parquet")
-        if con.execute(f"select count(*) from {table.name}").fetchone()[0]:
-            con.execute(f"copy (select {cols} from {table.name}) to '{_sql_string(path)}' ({options})")
-    return folder
-
-
-def _sql_string(text: str) -> str:
-    return text.replace("'", "''")
+        shutil.rmtree(folder / table.name, ignore_errors=True)
+    return dataset.write(con, folder, "part")
 
 
 class SparkEngine(Engine):
@@ -216,7 +203,8 @@ class SparkEngine(Engine):
         self.inputs: dict[str, object] = {}
         self.own_folder = tables is None
         self.folder = Path(tempfile.mkdtemp(prefix="logiq_sql_spark_")) if tables is None else Path(tables)
-        export_parquet(con, self.folder)
+        if not dataset.is_dataset(self.folder) or self.own_folder:  # a dataset (ingest --dataset) is read as it is
+            export_parquet(con, self.folder)
         for table in INPUT_TABLES:
             self._read_input(table)
 
