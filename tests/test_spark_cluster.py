@@ -27,6 +27,10 @@ from pathlib import Path
 import pytest
 from test_spark import DATA, LEFT_TURN, OUTPUTS, _assert_same, _both, _read, _twin
 
+from logiq_sql import db, ingest
+from logiq_sql.dataset import attach
+from logiq_sql.dataset_ingest import ingest_dataset
+
 
 pytestmark = pytest.mark.spark_cluster
 ROOT = Path(__file__).resolve().parents[1]
@@ -139,7 +143,7 @@ def session(cluster, project_zip):
      .config("spark.driver.host", "127.0.0.1").config("spark.driver.bindAddress", "127.0.0.1")
      .config("spark.driver.memory", "1g").config("spark.executor.memory", "512m")
      .config("spark.executor.cores", "1").config("spark.cores.max", str(WORKERS))
-     .config("spark.ui.enabled", "false").config("spark.sql.shuffle.partitions", "4")
+     .config("spark.ui.enabled", "false").config("spark.ui.showConsoleProgress", "false").config("spark.sql.shuffle.partitions", "4")
      .config("spark.sql.session.timeZone", "UTC")
      .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
      .appName("logiq-sql cluster test").getOrCreate())
@@ -175,12 +179,19 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
     assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
     _assert_same(duck, spark_db)
 
-    # the SUMO junction: the encroachment areas (shapely) run per drive on the executors (SparkEngine.derive)
-    duck, spark_db = _twin(tmp_path, "sumo", [("sumo", [DATA / "sumo/junction_s1"])])
-    _both(duck, spark_db, spark_master=url, scenarios=[LEFT_TURN], ego="every:40")
-    assert _read(duck, "matches").height > 0 and _read(duck, "encroachments").height > 0
-    _assert_same(duck, spark_db, {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"],
-                                  "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]})
+    # the SUMO junction from a Parquet dataset (ingest --dataset), which the executors read themselves; the
+    # encroachment areas (shapely) run per drive on the executors (SparkEngine.derive)
+    sumo = [DATA / "sumo/junction_s1"]
+    duck, spark_db, folder = tmp_path / "sumo.duckdb", tmp_path / "sumo_views.duckdb", tmp_path / "sumo_dataset"
+    ingest("sumo", sumo, duck)
+    ingest_dataset("sumo", sumo, folder)
+    with db.connect(spark_db) as con:
+        attach(con, folder)
+    _both(duck, spark_db, spark_master=url, spark_tables=str(folder), scenarios=[LEFT_TURN], ego="every:40")
+    kept = {"passages": ["drive_id", "actor_id", "passage"],
+            "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]}
+    assert _read(duck, "matches").height > 0 and _read(duck, "encroachments", kept["encroachments"]).height > 0
+    _assert_same(duck, spark_db, {**OUTPUTS, **kept})
 
     ran = _executor_task_lines(works)
     print(f"\ntasks run by the executors of each worker: {ran}")
