@@ -105,6 +105,13 @@ def attach(con: duckdb.DuckDBPyConnection, folder: str | Path) -> None:
             source = ("(select " + ", ".join(f"cast(null as {_DUCK[type(c.dtype)]}) as {c.name}"
                                             for c in table.columns) + " where false)")
         con.execute(f"create or replace view main.{table.name} as select {cols} from {source}")
+        con.execute(f"comment on view main.{table.name} is {_quoted(table.doc + ' (a view over ' + str(files) + ')')}")
+        for c in table.columns:
+            con.execute(f"comment on column main.{table.name}.{c.name} is {_quoted(c.doc)}")
+
+
+def _quoted(text: str) -> str:
+    return "'" + _sql_string(text) + "'"
 
 
 _DUCK = {type(schema.S): "varchar", type(schema.F): "double", type(schema.I): "bigint", type(schema.B): "boolean"}

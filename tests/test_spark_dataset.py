@@ -18,7 +18,7 @@ MATCH = ["--scenario", "follower_vehicle", "--scenario", "cyclist_close_to_movin
          "--set", "max_distance_from_cyclist=6m", "--quiet"]
 
 
-def test_a_dataset_matches_like_the_file_it_replaces(tmp_path):
+def test_a_dataset_matches_like_the_file_it_replaces(tmp_path, capsys):
     file = tmp_path / "drives.duckdb"
     assert main(["ingest", "commonroad", str(NGSIM), "--db", str(file), "--quiet"]) == EXIT_OK
     assert main(["ingest", "scenarionet", str(SCENE), "--db", str(file), "--quiet"]) == EXIT_OK
@@ -54,6 +54,11 @@ def test_a_dataset_matches_like_the_file_it_replaces(tmp_path):
                                  "where table_name in ('tracks', 'matches')").fetchall())
         assert kinds == {"tracks": "VIEW", "matches": "BASE TABLE"}, kinds
         assert con.execute("select count(*) from matches").fetchone()[0] > 0
+    capsys.readouterr()
+    # incremental, as on a file: a second run over the same dataset and results file has nothing to do
+    assert main(["match", "--dataset", str(dataset), "--out", str(out), *MATCH]) == EXIT_OK
+    assert "already up to date" in capsys.readouterr().out
+    _assert_same(file, out / "logiq.duckdb")
 
 
 def test_a_drive_id_from_two_files_is_kept_once_and_the_second_accounted_for(tmp_path):
