@@ -11,8 +11,8 @@ The project ships to the executors as a user ships it to a cluster: ``pip wheel 
 and the session adds it as a ``.zip`` Python file (``addPyFile``; Spark puts only .zip/.egg/.jar on the executors'
 Python path, and a pure-Python wheel is a zip). The executors' Python (``$PYSPARK_PYTHON``) is this venv's,
 which holds the dependencies (docs/engines.md: packing them for a cluster). The test checks that the executors
-imported logiq_sql from the shipped zip, and that both workers' executors ran tasks (their own logs).
-"""
+imported logiq_sql from the shipped zip, and that both workers' executors ran tasks (their own logs). The SUMO
+drive is read from a dataset written by ``ingest --dataset`` (the executors read its Parquet themselves)."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_spark import DATA, LEFT_TURN, OUTPUTS, _assert_same, _both, _read, _twin
+from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, match_both, read_output, twin_files
 
 from logiq_sql import db, ingest
 from logiq_sql.dataset import attach
@@ -143,7 +143,8 @@ def session(cluster, project_zip):
      .config("spark.driver.host", "127.0.0.1").config("spark.driver.bindAddress", "127.0.0.1")
      .config("spark.driver.memory", "1g").config("spark.executor.memory", "512m")
      .config("spark.executor.cores", "1").config("spark.cores.max", str(WORKERS))
-     .config("spark.ui.enabled", "false").config("spark.ui.showConsoleProgress", "false").config("spark.sql.shuffle.partitions", "4")
+     .config("spark.ui.enabled", "false").config("spark.ui.showConsoleProgress", "false")
+     .config("spark.sql.shuffle.partitions", "4")
      .config("spark.sql.session.timeZone", "UTC")
      .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
      .appName("logiq-sql cluster test").getOrCreate())
@@ -170,14 +171,14 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
 
     cr = DATA / "commonroad_ngsim/scenarios_2018b"
     nu = DATA / "nuscenes_mini_scenarionet"
-    duck, spark_db = _twin(tmp_path, "real", [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"]),
+    duck, spark_db = twin_files(tmp_path, "real", [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"]),
                                               ("scenarionet", [nu / "sd_nuscenes_v1.0-mini_scene-0103.pkl"])])
     kwargs = dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], ego="every:4",
                   overrides={"max_distance_from_cyclist": "6m"})
-    _both(duck, spark_db, spark_master=url, **kwargs)
-    counts = _read(duck, "matches").group_by("scenario").len().sort("scenario").rows()
+    match_both(duck, spark_db, spark_master=url, **kwargs)
+    counts = read_output(duck, "matches").group_by("scenario").len().sort("scenario").rows()
     assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
-    _assert_same(duck, spark_db)
+    assert_same_outputs(duck, spark_db)
 
     # the SUMO junction from a Parquet dataset (ingest --dataset), which the executors read themselves; the
     # encroachment areas (shapely) run per drive on the executors (SparkEngine.derive)
@@ -187,11 +188,12 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
     ingest_dataset("sumo", sumo, folder)
     with db.connect(spark_db) as con:
         attach(con, folder)
-    _both(duck, spark_db, spark_master=url, spark_tables=str(folder), scenarios=[LEFT_TURN], ego="every:40")
+    match_both(duck, spark_db, spark_master=url, spark_tables=str(folder), scenarios=[LEFT_TURN], ego="every:40")
     kept = {"passages": ["drive_id", "actor_id", "passage"],
             "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]}
-    assert _read(duck, "matches").height > 0 and _read(duck, "encroachments", kept["encroachments"]).height > 0
-    _assert_same(duck, spark_db, {**OUTPUTS, **kept})
+    assert read_output(duck, "matches").height > 0
+    assert read_output(duck, "encroachments", kept["encroachments"]).height > 0
+    assert_same_outputs(duck, spark_db, {**OUTPUTS, **kept})
 
     ran = _executor_task_lines(works)
     print(f"\ntasks run by the executors of each worker: {ran}")

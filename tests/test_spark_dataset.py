@@ -8,7 +8,7 @@ import shutil
 from urllib.parse import unquote
 
 import duckdb
-from test_spark import DATA, _assert_same
+from test_spark import DATA, assert_same_outputs
 
 from logiq_sql.cli import EXIT_OK, EXIT_REJECTED, main
 
@@ -48,7 +48,7 @@ def test_a_dataset_matches_like_the_file_it_replaces(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["match", "--db", str(file), *MATCH]) == EXIT_OK
     assert main(["match", "--dataset", str(dataset), "--out", str(out), *MATCH]) == EXIT_OK
-    _assert_same(file, out / "logiq.duckdb")
+    assert_same_outputs(file, out / "logiq.duckdb")
     with duckdb.connect(str(out / "logiq.duckdb"), read_only=True) as con:  # an analyst's file over the dataset
         kinds = dict(con.execute("select table_name, table_type from information_schema.tables "
                                  "where table_name in ('tracks', 'matches')").fetchall())
@@ -58,7 +58,7 @@ def test_a_dataset_matches_like_the_file_it_replaces(tmp_path, capsys):
     # incremental, as on a file: a second run over the same dataset and results file has nothing to do
     assert main(["match", "--dataset", str(dataset), "--out", str(out), *MATCH]) == EXIT_OK
     assert "already up to date" in capsys.readouterr().out
-    _assert_same(file, out / "logiq.duckdb")
+    assert_same_outputs(file, out / "logiq.duckdb")
 
 
 def test_a_drive_id_from_two_files_is_kept_once_and_the_second_accounted_for(tmp_path):
