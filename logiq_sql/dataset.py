@@ -8,8 +8,8 @@ Layout (one folder per table, hive partitions, so Spark and DuckDB read only the
 ``ingest FORMAT PATHS --dataset DIR`` (logiq_sql/dataset_ingest.py) reads each input file on its own (the
 ordinary ingest into a temporary DuckDB file, localisation included), then writes its tables under a part name
 made from the file's path: many machines can ingest different files into one DIR at the same time without
-writing the same file. A drive that is ingested again replaces its folders. A map is written under a fixed name per map id: a map written again (the
-same map, as ingest assumes for one map_id) replaces its files.
+writing the same file. A drive that is ingested again replaces its folders. A map is written under a fixed name
+per map id: a map written again (the same map, as ingest assumes for one map_id) replaces its files.
 
 ``attach(con, DIR)`` makes the canonical tables of a DuckDB file views over a dataset, so the matcher (and an
 analyst) reads it as it reads an ingested file; the Spark engine reads DIR itself.
