@@ -37,6 +37,18 @@ def _say(quiet: bool):
 def cmd_ingest(args: argparse.Namespace) -> int:
     from logiq_sql.ingestion import ingest
 
+    if (args.db is None) == (args.dataset is None):
+        raise LogiqError("ingest: give either --db FILE (a DuckDB file) or --dataset DIR (Parquet, docs/engines.md).")
+    if args.dataset is not None:
+        from logiq_sql.dataset_ingest import ingest_dataset
+
+        summary = ingest_dataset(args.format, args.paths, args.dataset, progress=_say(args.quiet))
+        print(f"{args.dataset}: {summary}")
+        if summary.rejected:
+            print(f"{summary.rejected} drive(s) rejected, each with its reason in {args.dataset}/drive_inputs "
+                  "(status = 'rejected', reject_reason)")
+            return EXIT_REJECTED
+        return EXIT_OK
     summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
     print(f"{args.db}: {summary}")
     if summary.rejected:
@@ -56,10 +68,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_match(args: argparse.Namespace) -> int:
     from logiq_sql.match import match
 
+    if args.db is None and not (args.dataset and args.out):
+        raise LogiqError("match: give --db FILE, or --dataset DIR with --out DIR (the results file is then "
+                         "OUT/logiq.duckdb).")
+    spark_tables = args.spark_tables
+    if args.dataset is not None:
+        from logiq_sql import db
+        from logiq_sql.dataset import attach
+
+        args.db = args.db or str(Path(args.out) / "logiq.duckdb")
+        with db.connect(args.db) as con:  # its canonical tables become views over the dataset
+            attach(con, args.dataset)
+        spark_tables = spark_tables or args.dataset  # Spark reads the dataset itself
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
                    progress=_say(args.quiet), force=args.force, engine=args.engine,
-                   spark_master=args.spark_master, spark_tables=args.spark_tables)
+                   spark_master=args.spark_master, spark_tables=spark_tables)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -182,7 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "tracks.parquet beside it; osi: ASAM OSI traces (.osi, .mcap), with an .xodr beside them "
                         "as the map (docs/formats.md)")
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
-    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file to create or update")
+    p.add_argument("--db", metavar="FILE", help="DuckDB file to create or update")
+    p.add_argument("--dataset", metavar="DIR", help="instead of --db: write the canonical tables as Parquet "
+                   "partitioned by drive into DIR, file by file, so many machines can ingest into one DIR "
+                   "(docs/engines.md)")
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
     p.set_defaults(func=cmd_ingest)
 
@@ -202,7 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("match", help="match scenarios against the drives of a DuckDB file", epilog=EPILOG,
                        description="Match scenarios and store matches, match_phases, kpis and coverage in the file.")
-    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
+    p.add_argument("--db", metavar="FILE", help="DuckDB file written by ingest (with --dataset: the results file, "
+                   "default OUT/logiq.duckdb)")
+    p.add_argument("--dataset", metavar="DIR", help="match the Parquet dataset written by ingest --dataset; --db "
+                   "then gets views over it beside the results (docs/engines.md)")
     p.add_argument("--scenario", action="append", metavar="NAME", help="scenario to match (repeatable; default all)")
     p.add_argument("--ego", default="auto", metavar="auto|recorded|all|every:N|IDS",
                    help="who is the SUT: auto (recorded ego, else every vehicle; default), recorded, all, "

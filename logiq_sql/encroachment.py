@@ -27,6 +27,8 @@ ENCROACHMENTS_SCHEMA = {
     "ego_enter_s_m": pl.Float64, "ego_leave_s_m": pl.Float64,
     "actor_enter_s_m": pl.Float64, "actor_leave_s_m": pl.Float64,
 }
+# the tables encroachments() reads, every one keyed by drive_id; a drive without crossing pairs has no rows
+ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 
 

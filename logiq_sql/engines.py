@@ -20,6 +20,7 @@ import functools
 import os
 import re
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -28,7 +29,7 @@ import polars as pl
 import sqlglot
 from sqlglot import exp
 
-from logiq_sql import schema
+from logiq_sql import dataset, schema
 from logiq_sql.errors import LogiqError
 from logiq_sql.paths import query_path
 from logiq_sql.sql import _literal, _used, bind, materialise, query_text
@@ -71,6 +72,12 @@ class Engine:
 
     def release_drives(self) -> None:
         """Undo ``select_drives``."""
+
+    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
+        """Make ``table`` from ``compute(con)``, a Python step (shapely) that queries the tables ``reads`` (all
+        keyed by drive_id) through a DuckDB connection and returns a Polars frame of ``schema``. Here it runs once
+        over the whole batch; Spark runs it per drive on the executors."""
+        self.register(table, compute(self))
 
     def persist(self, tables: tuple[str, ...]) -> None:
         """Copy the step tables among ``tables`` that this group made into DuckDB temp tables, then forget them."""
@@ -152,7 +159,13 @@ def spark_session(master: str | None = None):
         raise EngineError("--engine spark needs PySpark and Java 17: pip install 'logiq-sql[spark]'.") from None
     active = SparkSession.getActiveSession()
     if active is not None:
+        if master and active.sparkContext.master != master:
+            raise EngineError(f"--spark-master {master}: this process already has a Spark session on "
+                              f"{active.sparkContext.master}; stop it first, or leave --spark-master out to use it.")
         return active
+    # Python steps (SparkEngine.derive) run in the executors' Python, by default `python3` on the PATH: in local
+    # mode and on this machine's workers that must be this interpreter, which has the dependencies
+    os.environ.setdefault("PYSPARK_PYTHON", sys.executable)
     builder = SparkSession.builder
     master = master or os.environ.get(SPARK_MASTER_ENV)
     if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
@@ -170,25 +183,12 @@ def spark_session(master: str | None = None):
 
 
 def export_parquet(con: duckdb.DuckDBPyConnection, folder: str | Path) -> Path:
-    """The canonical input tables of a DuckDB file as Parquet folders ``<folder>/<table>/``; per-drive tables
-    partitioned by drive_id (``drive_id=<id>/``), so a cluster reads only the drives it is given."""
+    """The canonical input tables of a DuckDB file as a dataset (logiq_sql/dataset.py) in ``folder``, whose
+    table folders are replaced: per-drive tables partitioned by drive_id, so a cluster reads only its drives."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     for table in INPUT_TABLES:
-        target = folder / table.name
-        if target.exists():
-            shutil.rmtree(target)
-        target.mkdir()
-        cols = ", ".join(table.column_names)
-        options = "format parquet" + (", partition_by (drive_id)" if table.name in PARTITIONED_BY_DRIVE else "")
-        path = str(target) if table.name in PARTITIONED_BY_DRIVE else str(target / "part-0.parquet")
-        if con.execute(f"select count(*) from {table.name}").fetchone()[0]:
-            con.execute(f"copy (select {cols} from {table.name}) to '{_sql_string(path)}' ({options})")
-    return folder
-
-
-def _sql_string(text: str) -> str:
-    return text.replace("'", "''")
+        shutil.rmtree(folder / table.name, ignore_errors=True)
+    return dataset.write(con, folder, "part")
 
 
 class SparkEngine(Engine):
@@ -204,7 +204,8 @@ class SparkEngine(Engine):
         self.inputs: dict[str, object] = {}
         self.own_folder = tables is None
         self.folder = Path(tempfile.mkdtemp(prefix="logiq_sql_spark_")) if tables is None else Path(tables)
-        export_parquet(con, self.folder)
+        if not dataset.is_dataset(self.folder) or self.own_folder:  # a dataset (ingest --dataset) is read as it is
+            export_parquet(con, self.folder)
         for table in INPUT_TABLES:
             self._read_input(table)
 
@@ -248,6 +249,28 @@ class SparkEngine(Engine):
         for table in PARTITIONED_BY_DRIVE:
             self.inputs[table].createOrReplaceTempView(table)
 
+    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
+        # on the executors, one drive at a time: the rows of every table in ``reads`` go, as one union with
+        # prefixed columns, to a grouped Arrow UDF that loads them into an in-memory DuckDB and calls ``compute``;
+        # only drives with rows in reads[0] are grouped. Nothing is collected to the driver.
+        from pyspark.sql import functions as F
+        from pyspark.sql import types as T
+
+        drives = self.spark.table(reads[0]).select("drive_id").distinct()
+        parts, columns = [], {}
+        for name in reads:
+            df = self.spark.table(name).join(drives, "drive_id", "left_semi")
+            columns[name] = [(f"{name}__{c}", c) for c in df.columns]
+            parts.append(df.select(F.col("drive_id").alias("_drive"), F.lit(name).alias("_table"),
+                                   *[F.col(c).alias(alias) for alias, c in columns[name]]))
+        packed = functools.reduce(lambda a, b: a.unionByName(b, allowMissingColumns=True), parts)
+        struct = T.StructType([T.StructField(c, _spark_type(t), True) for c, t in schema.items()])
+
+        def per_drive(rows):  # a plain function: PySpark 4.3's applyInArrow fails on a functools.partial
+            return _derive_per_drive(rows, compute, columns, schema)
+
+        self._keep(table, packed.groupBy("_drive").applyInArrow(per_drive, struct))
+
     def persist(self, tables: tuple[str, ...]) -> None:
         for table in tables:
             if table in self.views:
@@ -264,6 +287,23 @@ class SparkEngine(Engine):
         self.views.clear()
         if self.own_folder:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def _derive_per_drive(packed, compute, columns: dict[str, list[tuple[str, str]]], schema: dict[str, pl.DataType]):
+    """SparkEngine.derive on an executor: one drive's packed rows back into their tables, ``compute`` over them."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    arrow_types = {pl.String: pa.string(), pl.Float64: pa.float64(), pl.Int64: pa.int64(), pl.Boolean: pa.bool_()}
+    out = pa.schema([(c, arrow_types[t if isinstance(t, type) else type(t)]) for c, t in schema.items()])
+    con = duckdb.connect()
+    try:
+        for name, cols in columns.items():
+            rows = packed.filter(pc.equal(packed["_table"], name)).select([alias for alias, _ in cols])
+            con.register(name, rows.rename_columns([c for _, c in cols]))
+        return compute(con).select(list(schema)).to_arrow().cast(out)  # Spark wants plain (not large) strings
+    finally:
+        con.close()
 
 
 def check_engine(name: str, relatives: list[str]) -> None:

@@ -28,7 +28,7 @@ import polars as pl
 from logiq_sql import db, units
 from logiq_sql.batching import batches
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
-from logiq_sql.encroachment import encroachments
+from logiq_sql.encroachment import ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA, encroachments
 from logiq_sql.engines import Engine, as_engine, check_engine, open_engine, render_for_engine, stored_schema
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.scenario import Scenario, list_scenarios, load_scenario
@@ -261,7 +261,7 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
         with stage("junctions"):
             for table, rel in JUNCTION_STEPS:
                 engine.materialise(table, rel, values)
-            engine.register("encroachments", encroachments(engine))
+            engine.derive("encroachments", encroachments, ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA)
 
 
 def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",

@@ -45,7 +45,7 @@ def spark():
     session.stop()
 
 
-def _twin(tmp: Path, name: str, ingests) -> tuple[Path, Path]:
+def twin_files(tmp: Path, name: str, ingests) -> tuple[Path, Path]:
     """One ingest, copied: the DuckDB engine matches one file, the Spark engine the other."""
     duck = tmp / f"{name}_duckdb.duckdb"
     for fmt, paths in ingests:
@@ -55,7 +55,7 @@ def _twin(tmp: Path, name: str, ingests) -> tuple[Path, Path]:
     return duck, spark
 
 
-def _both(duck: Path, spark_db: Path, **kwargs) -> dict[str, float]:
+def match_both(duck: Path, spark_db: Path, **kwargs) -> dict[str, float]:
     seconds = {}
     for engine, db in (("duckdb", duck), ("spark", spark_db)):
         started = time.perf_counter()
@@ -77,7 +77,7 @@ OUTPUTS = {  # table -> sort key (every output table the matcher writes, except 
 }
 
 
-def _read(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame | None:
+def read_output(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame | None:
     with duckdb.connect(str(db), read_only=True) as con:
         have = {r[0] for r in con.execute("select table_name from duckdb_tables()").fetchall()}
         if table not in have:
@@ -87,11 +87,11 @@ def _read(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame |
                        else f"select * from {table}").pl().sort(keys or OUTPUTS[table])
 
 
-def _assert_same(duck: Path, spark_db: Path, tables=OUTPUTS) -> None:
+def assert_same_outputs(duck: Path, spark_db: Path, tables=OUTPUTS) -> None:
     inexact = total = 0
     worst = worst_abs = 0.0
     for table, keys in tables.items():
-        a, b = _read(duck, table, keys), _read(spark_db, table, keys)
+        a, b = read_output(duck, table, keys), read_output(spark_db, table, keys)
         if a is None:
             assert b is None, table
             continue
@@ -120,7 +120,7 @@ def _assert_same(duck: Path, spark_db: Path, tables=OUTPUTS) -> None:
 def real(tmp_path_factory):
     cr = DATA / "commonroad_ngsim/scenarios_2018b"
     nu = DATA / "nuscenes_mini_scenarionet"
-    return _twin(tmp_path_factory.mktemp("real"), "real", [
+    return twin_files(tmp_path_factory.mktemp("real"), "real", [
         ("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"]),
         ("scenarionet", [nu / "sd_nuscenes_v1.0-mini_scene-0103.pkl"])])
 
@@ -132,23 +132,23 @@ def test_spark_matches_duckdb_on_real_drives(spark, real):
     group must keep only the tables it computed, on both engines."""
     duck, spark_db = real
     six_m = {"max_distance_from_cyclist": "6m"}
-    _both(duck, spark_db, scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4",
+    match_both(duck, spark_db, scenarios=["cyclist_close_to_moving_sut"], overrides=six_m, ego="every:4",
           drives=["scene-0103"])
     # one drive per batch: each batch's queries read only its drive's rows (Engine.select_drives)
-    _both(duck, spark_db, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"],
+    match_both(duck, spark_db, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"],
           overrides=six_m, ego="every:4", batch_rows=1)
-    counts = _read(duck, "matches").group_by("scenario").len().sort("scenario").rows()
+    counts = read_output(duck, "matches").group_by("scenario").len().sort("scenario").rows()
     assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
-    _assert_same(duck, spark_db)
+    assert_same_outputs(duck, spark_db)
 
 
 def test_spark_matches_duckdb_on_a_simulated_junction(spark, tmp_path_factory):
     """The bundled SUMO junction (signal states known), every 40th vehicle as the SUT: left turns with PET and
     the encroachment areas (shapely between the Spark steps)."""
-    duck, spark_db = _twin(tmp_path_factory.mktemp("sumo"), "sumo", [("sumo", [DATA / "sumo/junction_s1"])])
-    _both(duck, spark_db, scenarios=[LEFT_TURN], ego="every:40")
-    assert _read(duck, "matches").height > 0
-    _assert_same(duck, spark_db, {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"],
+    duck, spark_db = twin_files(tmp_path_factory.mktemp("sumo"), "sumo", [("sumo", [DATA / "sumo/junction_s1"])])
+    match_both(duck, spark_db, scenarios=[LEFT_TURN], ego="every:40")
+    assert read_output(duck, "matches").height > 0
+    assert_same_outputs(duck, spark_db, {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"],
                                   "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]})
 
 
