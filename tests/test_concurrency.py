@@ -1,0 +1,302 @@
+"""Issue 16: a scheduled run and analysts at the same time (README, "Scheduled runs" and "Disk space").
+
+Readers open the published file read-only while a run writes its own copy; one writer at a time (a second one
+waits or stops with exit 4); a killed or failed run leaves the published state as it was."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import duckdb
+import polars as pl
+import pytest
+
+from logiq_sql import locking, schema
+from logiq_sql.cli import EXIT_BUSY, EXIT_DISK_FULL
+
+ROOT = Path(__file__).resolve().parents[1]
+NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "LOGIQ_SQL_THREADS": "1"}
+CLI = [sys.executable, "-m", "logiq_sql.cli"]
+SEED_SCENES = sorted(NGSIM.glob("USA_US101-*.xml.gz"), key=lambda p: p.stat().st_size)[:8]  # the 8 smallest
+FIRST_COPIES, LATER_COPIES = range(0, 5), range(5, 40)  # 40 drives, then 280 more
+READERS = 8
+
+# one statement, so one snapshot: what a published state holds, and whether its tables agree with one another
+CHECK = """
+select
+    (select count(*) from drive_inputs) as drives,
+    (select count(*) from drive_inputs where status = 'ingested') as ingested,
+    (select count(distinct drive_id) from tracks) as drives_with_tracks,
+    (select count(*) from tracks) as tracks,
+    (select coalesce(sum(rows_read - rows_rejected), 0) from drive_inputs) as tracks_expected,
+    (select count(*) from matches) as matches,
+    (select coalesce(sum(matches), 0) from drive_scenarios) as matches_expected,
+    (select count(*) from drive_scenarios) as drive_scenarios
+"""
+
+# a reader process: opens the published file, runs CHECK, closes, again and again until told to stop
+READER = """
+import json, os, sys, time
+from logiq_sql.db import open_for_read
+db, check, stop, out = sys.argv[1:]
+seen = []
+while not os.path.exists(stop):
+    start = time.time()
+    try:
+        with open_for_read(db) as con:
+            answer = list(con.execute(check).fetchall()[0])
+    except Exception as exc:
+        answer = f"{type(exc).__name__}: {exc}"
+    seen.append([start, time.time() - start, answer])
+    time.sleep(0.01)
+with open(out, "w") as f:
+    json.dump(seen, f)
+"""
+
+
+def consistent(state: list[int]) -> bool:
+    drives, ingested, with_tracks, tracks, tracks_expected, matches, matches_expected, _ = state
+    return with_tracks == ingested <= drives and tracks == tracks_expected and matches == matches_expected
+
+
+def check(db: Path) -> list[int]:
+    with duckdb.connect(str(db), read_only=True) as con:
+        return list(con.execute(CHECK).fetchall()[0])
+
+
+def run(args: list[str], kill_after: str | None = None) -> tuple[int, str]:
+    """A logiq-sql command; with ``kill_after``, SIGKILLed as soon as a progress line holds that text."""
+    proc = subprocess.Popen([*CLI, *args], cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    seen = []
+    for line in proc.stderr:
+        seen.append(line)
+        if kill_after is not None and kill_after in line:
+            proc.send_signal(signal.SIGKILL)
+            break
+    proc.wait(timeout=600)
+    proc.stderr.close()
+    return proc.returncode, "".join(seen)
+
+
+@pytest.fixture(scope="module")
+def parquet_drives(tmp_path_factory) -> tuple[Path, Path]:
+    """The bundled scenes replicated as canonical Parquet: copy k of a drive is ``<drive_id>~k`` (maps shared),
+    its first vehicle by actor id the recorded ego. Two folders: a first ingest and a later, larger one."""
+    tmp = tmp_path_factory.mktemp("drives")
+    seed = tmp / "seed.duckdb"
+    assert run(["ingest", "commonroad", *map(str, SEED_SCENES), "--db", str(seed), "--quiet"])[0] == 0
+    with duckdb.connect(str(seed), read_only=True) as con:
+        drives = con.sql("select drive_id, dt_s, map_id from drive_inputs").pl()
+        tracks = con.sql("select drive_id, actor_id, kind, frame, t_s, x_m, y_m, heading_rad, speed_mps, length_m, "
+                         "width_m, actor_id = min(case when kind = 'vehicle' then actor_id end) over "
+                         "(partition by drive_id) as is_ego from tracks").pl()
+        maps = {t: con.sql(f"select * from {t}").pl() for t in schema.MAP_TABLE_NAMES}
+    folders = []
+    for name, copies in (("first", FIRST_COPIES), ("later", LATER_COPIES)):
+        folder = tmp / name
+        folder.mkdir()
+        for table, frame in (("tracks", tracks), ("drives", drives)):
+            pl.concat([frame.with_columns(pl.col("drive_id") + f"~{k}") for k in copies]).write_parquet(
+                folder / f"{table}.parquet")
+        for table, frame in maps.items():
+            frame.write_parquet(folder / f"{table}.parquet")
+        folders.append(folder)
+    return folders[0], folders[1]
+
+
+class DiskWatch:
+    """Polls the bytes a run keeps beside the published file (its copy, WAL, spill folder) and the file's own."""
+
+    def __init__(self, db: Path):
+        self.db, self.peak_beside, self.published = db, 0, 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._poll, daemon=True)
+        self._thread.start()
+
+    def _poll(self) -> None:
+        while not self._stop.wait(0.05):
+            beside = 0
+            for p in self.db.parent.glob(self.db.name + ".*"):
+                try:
+                    beside += sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() \
+                        else p.stat().st_size
+                except FileNotFoundError:  # renamed or removed while counted
+                    pass
+            self.peak_beside = max(self.peak_beside, beside)
+            if self.db.exists():
+                self.published = max(self.published, self.db.stat().st_size)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+@pytest.mark.load
+def test_readers_see_only_published_states_while_runs_write_and_after_one_is_killed(tmp_path, parquet_drives):
+    first, later = parquet_drives
+    db = tmp_path / "x.duckdb"
+    assert run(["ingest", "parquet", str(first), "--db", str(db), "--quiet"])[0] == 0
+    published = [check(db)]
+    stop = tmp_path / "stop"
+    readers = [subprocess.Popen([sys.executable, "-c", READER, str(db), CHECK, str(stop), str(tmp_path / f"r{i}")],
+                                cwd=ROOT, env=ENV) for i in range(READERS)]
+    watch = DiskWatch(db)
+    started = time.time()
+    try:
+        assert run(["ingest", "parquet", str(later), "--db", str(db), "--quiet"])[0] == 0
+        published.append(check(db))
+        code, progress = run(["match", "--db", str(db), "--ego", "recorded", "--scenario", "follower_vehicle",
+                              "--scenario", "sut_cut_out"])
+        assert code == 0, progress
+        published.append(check(db))
+        # a run with another parameter would replace every follower match: killed once its relations are made
+        code, _ = run(["match", "--db", str(db), "--ego", "recorded", "--scenario", "follower_vehicle",
+                       "--set", "min_scenario_duration=2s"], kill_after="relations:")
+        assert code == -signal.SIGKILL
+        killed = time.time()
+        time.sleep(3)  # the readers go on after the kill
+    finally:
+        watch.stop()
+        stop.touch()
+        for r in readers:
+            r.wait(timeout=120)
+    assert check(db) == published[-1]  # the killed run published nothing
+    answers = [a for i in range(READERS) for a in json.loads((tmp_path / f"r{i}").read_text())]
+    failed = [a for a in answers if isinstance(a[2], str)]
+    assert not failed, failed[:3]
+    assert all(consistent(state) for state in published)
+    assert published[0][0] == 40 and published[1][0] == 320 and published[2][5] > 0  # three different states
+    states = {tuple(a[2]) for a in answers}
+    assert states <= {tuple(s) for s in published}  # every answer is a state some run published
+    assert {tuple(published[0]), tuple(published[-1])} <= states  # the readers saw the runs publish
+    after_kill = [a for a in answers if a[0] > killed]
+    assert {tuple(a[2]) for a in after_kill} == {tuple(published[-1])}
+    assert all(sum(a[0] > killed for a in json.loads((tmp_path / f"r{i}").read_text())) > 0 for i in range(READERS))
+    waits = sorted(a[1] for a in answers)
+    print(f"\n{len(answers)} reader queries ({READERS} processes, each opening the file, running one query and "
+          f"closing it) in {killed + 3 - started:.1f} s: {len(answers) / (killed + 3 - started):.1f} queries/s; "
+          f"wait per query: median {waits[len(waits) // 2] * 1000:.0f} ms, longest {waits[-1] * 1000:.0f} ms; "
+          f"states seen: {len(states)}.\nDisk: published file {watch.published / 1e6:.1f} MB, peak beside it during "
+          f"the runs {watch.peak_beside / 1e6:.1f} MB ({watch.peak_beside / watch.published:.2f}x the file).")
+
+
+def hold_lock(db: Path) -> subprocess.Popen:
+    """Another writer: a process that takes the writer lock of ``db`` and keeps it until killed."""
+    code = ("import sys, time; from logiq_sql import locking; locking.acquire(sys.argv[1]); print('held', "
+            "flush=True); time.sleep(600)")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(db)], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+                            text=True)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_stops_at_once_naming_the_other_or_waits_for_it(tmp_path):
+    db = tmp_path / "x.duckdb"
+    scene = str(SEED_SCENES[0])
+    assert run(["ingest", "commonroad", scene, "--db", str(db), "--quiet"])[0] == 0
+    before = check(db)
+    other = hold_lock(db)
+    try:
+        run_ = subprocess.run([*CLI, "match", "--db", str(db), "--quiet"], cwd=ROOT, env=ENV, capture_output=True,
+                              text=True)
+        assert run_.returncode == EXIT_BUSY
+        assert f"{db}: another run is writing it: pid {other.pid} (" in run_.stderr
+        assert "locking.acquire" in run_.stderr and " since 20" in run_.stderr and "--wait" in run_.stderr
+        assert "Traceback" not in run_.stderr
+        assert check(db) == before  # readers are not blocked by it either
+        # --wait: progress while waiting, then the run once the other writer is gone (killed: no stale lock)
+        waiting = subprocess.Popen([*CLI, "match", "--db", str(db), "--scenario", "follower_vehicle", "--wait", "60"],
+                                   cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        first = waiting.stderr.readline()
+        assert first.startswith(f"waiting for pid {other.pid} (") and f"to finish writing {db}" in first
+        other.kill()
+        out, err = waiting.communicate(timeout=300)
+        assert waiting.returncode == 0, err
+        assert check(db)[5] > 0
+    finally:
+        other.kill()
+        other.wait()
+
+
+def test_a_writer_that_waits_too_long_gives_up_with_exit_4(tmp_path, capsys):
+    from logiq_sql.cli import main
+
+    db = tmp_path / "x.duckdb"
+    other = hold_lock(db)
+    try:
+        assert main(["ingest", "commonroad", str(SEED_SCENES[0]), "--db", str(db), "--wait", "0.5"]) == EXIT_BUSY
+        err = capsys.readouterr().err
+        assert err.startswith(f"waiting for pid {other.pid}")
+        assert f"another run is writing it: pid {other.pid}" in err and "(waited " in err
+        assert not db.exists() and not db.with_name("x.duckdb.writing").exists()
+    finally:
+        other.kill()
+        other.wait()
+    locking.acquire(db).release()  # the killed holder left no stale lock
+
+
+def test_a_run_failing_after_commits_publishes_nothing_and_the_next_run_takes_its_work_up(tmp_path):
+    from logiq_sql import ingest
+
+    db = tmp_path / "x.duckdb"
+    ingest("commonroad", SEED_SCENES[:1], db)
+    before = check(db)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_second(line: str) -> None:  # after the second file's batch is committed
+        if line.startswith("[2/"):
+            raise Stop
+    import logiq_sql.ingestion as ingestion
+    keep, ingestion.BATCH_ROWS = ingestion.BATCH_ROWS, 1  # one transaction per drive
+    try:
+        with pytest.raises(Stop):
+            ingest("commonroad", SEED_SCENES[1:4], db, progress=stop_after_second)
+        assert check(db) == before
+        work = db.with_name("x.duckdb.writing")
+        assert check(work)[0] == 3  # the first drive, and the two committed before the failure
+        lines = []
+        ingest("commonroad", SEED_SCENES[1:4], db, progress=lines.append)
+    finally:
+        ingestion.BATCH_ROWS = keep
+    assert lines[0].startswith("taking up the unpublished work of an earlier run")
+    assert check(db)[0] == 4 and consistent(check(db)) and not work.exists()
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 6 MB tmpfs (needs root, as in CI's container); skipped where mounting is not allowed."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=6m", "tmpfs", str(mount)], capture_output=True)
+    if made.returncode:
+        pytest.skip(f"cannot mount a small tmpfs here: {made.stderr.decode().strip()}")
+    yield mount
+    subprocess.run(["umount", str(mount)], check=True)
+
+
+def test_a_full_disk_stops_the_run_with_exit_5_and_leaves_the_published_file(small_disk):
+    db = small_disk / "x.duckdb"
+    assert run(["ingest", "commonroad", str(SEED_SCENES[0]), "--db", str(db), "--quiet"])[0] == 0
+    before, size = check(db), db.stat().st_size
+    # more drives than the disk holds beside the file and its copy
+    many = sorted(NGSIM.glob("USA_US101-*.xml.gz"))
+    run_ = subprocess.run([*CLI, "ingest", "commonroad", *map(str, many), "--db", str(db), "--quiet"], cwd=ROOT,
+                          env=ENV, capture_output=True, text=True)
+    assert run_.returncode == EXIT_DISK_FULL, run_.stderr
+    assert f"logiq-sql: disk full: {db}: the disk filled up while this run wrote its copy" in run_.stderr
+    assert "Traceback" not in run_.stderr
+    assert check(db) == before and db.stat().st_size == size
+    assert sorted(p.name for p in small_disk.iterdir()) == ["x.duckdb", "x.duckdb.lock"]  # the copy is gone
+    assert run(["ingest", "commonroad", str(SEED_SCENES[1]), "--db", str(db), "--quiet"])[0] == 0  # room again
+    assert check(db)[0] == 2
