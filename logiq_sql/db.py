@@ -370,6 +370,7 @@ class Writer:
         if self.work.is_file() and self._base.is_file() and self._base.read_text() == base:
             if progress:
                 progress(f"taking up the unpublished work of an earlier run that stopped ({self.work})")
+            shutil.rmtree(f"{self.work}.tmp", ignore_errors=True)  # its spill: no use to anyone now
             return
         self._discard()
         self._base.write_text(base)
@@ -385,7 +386,7 @@ class Writer:
         for p in (self.work, Path(f"{self.work}.wal"), Path(f"{self.work}.partial"), Path(f"{self.work}.wal.partial"),
                   self._base):
             p.unlink(missing_ok=True)
-        shutil.rmtree(f"{self.work}.tmp", ignore_errors=True)  # DuckDB's spill folder of a killed run
+        shutil.rmtree(f"{self.work}.tmp", ignore_errors=True)  # DuckDB's spill folder
 
     def publish(self) -> None:
         """Make the copy the file readers open, atomically; the lock is still held."""

@@ -234,6 +234,9 @@ def test_a_second_writer_stops_at_once_naming_the_other_or_waits_for_it(tmp_path
         assert "locking.acquire" in run_.stderr and " since 20" in run_.stderr and "--wait" in run_.stderr
         assert "Traceback" not in run_.stderr
         assert check(db) == before  # readers are not blocked by it either
+        read = subprocess.run([*CLI, "query", "select count(*) from drives", "--db", str(db)], cwd=ROOT, env=ENV,
+                              capture_output=True, text=True)
+        assert read.returncode == 0, read.stderr
         # --wait: progress while waiting, then the run once the other writer is gone (killed: no stale lock)
         waiting = subprocess.Popen([*CLI, "match", "--db", str(db), "--scenario", "follower_vehicle", "--wait", "60"],
                                    cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -243,6 +246,10 @@ def test_a_second_writer_stops_at_once_naming_the_other_or_waits_for_it(tmp_path
         out, err = waiting.communicate(timeout=300)
         assert waiting.returncode == 0, err
         assert check(db)[5] > 0
+        other = hold_lock(db)  # the report too reads while a run writes
+        report = subprocess.run([*CLI, "report", "--db", str(db), "--out", str(tmp_path / "r.html")], cwd=ROOT,
+                                env=ENV, capture_output=True, text=True)
+        assert report.returncode == 0, report.stderr
     finally:
         other.kill()
         other.wait()
@@ -366,3 +373,36 @@ def test_readers_opening_while_runs_publish_one_after_another_never_fail_or_go_b
         assert seen and all(count == (last or 0) for count, last in seen)  # whole runs only
         assert [count for count, _ in seen] == sorted(count for count, _ in seen)  # never an older state
     print(f"\n25 publishes; reader opens: {sum(len(seen) for seen, _ in results)}, none failed")
+
+
+def test_a_leftover_copy_of_another_version_of_the_file_is_discarded_not_published(tmp_path):
+    from logiq_sql import ingest
+
+    db = tmp_path / "x.duckdb"
+    ingest("commonroad", SEED_SCENES[:1], db)
+    # a copy left by a run killed while copying, and its stamp from a file that has changed since
+    work = db.with_name("x.duckdb.writing")
+    work.write_bytes(b"not a database")
+    work.with_name("x.duckdb.writing.base").write_text("1:2:3 -")
+    work.with_name("x.duckdb.writing.partial").write_bytes(b"half")
+    lines = []
+    ingest("commonroad", SEED_SCENES[1:2], db, progress=lines.append)
+    assert not any("taking up" in line for line in lines)
+    assert check(db)[0] == 2 and consistent(check(db))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.duckdb", "x.duckdb.lock"]
+
+
+def test_a_run_does_not_publish_over_a_file_written_in_place_meanwhile(tmp_path):
+    from logiq_sql import db as logiq_db
+    from logiq_sql.errors import FileBusyError
+
+    path = tmp_path / "x.duckdb"
+    with logiq_db.open_for_write(path) as con:
+        con.execute("create table notes (text varchar)")
+    with pytest.raises(FileBusyError, match="changed while this run wrote its copy"):
+        with logiq_db.open_for_write(path) as con:
+            con.execute("insert into notes values ('from the run')")
+            with duckdb.connect(str(path)) as in_place:  # a writer that takes no lock
+                in_place.execute("insert into notes values ('in place')")
+    with logiq_db.open_for_read(path) as con:
+        assert con.execute("select text from notes").fetchall() == [("in place",)]
