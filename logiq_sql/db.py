@@ -400,7 +400,10 @@ class Writer:
                 f"{locking.lock_path(self.path)} (e.g. logiq_sql.connect or duckdb.connect writing in place): this "
                 "run was not published, so that writer's changes are not lost. Rerun it.")
         _fsync(self.work)
-        Path(f"{self.path}.wal").unlink(missing_ok=True)  # the old file's; its writes are in the copy
+        stale_wal = Path(f"{self.path}.wal")
+        if stale_wal.exists():  # the old file's (a writer in place was killed); its writes are in the copy
+            self._base.write_text(_stamp(self.path).split(" ")[0] + " -")  # killed next: the copy is still taken up
+            stale_wal.unlink()
         os.replace(self.work, self.path)
         dir_fd = os.open(self.path.parent, os.O_RDONLY)
         try:

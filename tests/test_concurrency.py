@@ -406,3 +406,21 @@ def test_a_run_does_not_publish_over_a_file_written_in_place_meanwhile(tmp_path)
                 in_place.execute("insert into notes values ('in place')")
     with logiq_db.open_for_read(path) as con:
         assert con.execute("select text from notes").fetchall() == [("in place",)]
+
+
+def test_a_wal_left_by_a_writer_in_place_is_taken_into_the_copy_and_not_left_beside_the_new_file(tmp_path):
+    from logiq_sql import db as logiq_db
+
+    path = tmp_path / "x.duckdb"
+    with logiq_db.open_for_write(path) as con:
+        con.execute("create table notes (text varchar)")
+    # a writer in place (an older logiq_sql, or duckdb.connect) killed after a commit that is only in its WAL
+    code = ("import duckdb, os, sys; con = duckdb.connect(sys.argv[1]); con.execute(\"set checkpoint_threshold = '1GB'\"); "
+            "con.execute(\"insert into notes values ('in the wal')\"); os._exit(0)")
+    subprocess.run([sys.executable, "-c", code, str(path)], check=True)
+    assert path.with_name("x.duckdb.wal").exists()
+    with logiq_db.open_for_write(path) as con:
+        con.execute("insert into notes values ('from the run')")
+    assert not path.with_name("x.duckdb.wal").exists()
+    with logiq_db.open_for_read(path) as con:
+        assert sorted(con.execute("select text from notes").fetchall()) == [("from the run",), ("in the wal",)]
