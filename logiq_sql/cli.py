@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from logiq_sql.errors import LogiqError
+from logiq_sql.errors import DiskFullError, FileBusyError, LogiqError
 from logiq_sql.evaluate import add_evaluate_parser
 from logiq_sql.labels import add_label_parser
 from logiq_sql.match import DEFAULT_RELATION_RANGE
@@ -16,8 +16,10 @@ EXIT_OK = 0  # done
 EXIT_UNEXPECTED = 1  # a bug or an environment failure: the traceback says where
 EXIT_BAD_INPUT = 2  # nothing was done: the message names the file, key or column and the fix
 EXIT_REJECTED = 3  # ingest finished, but some drives were rejected (their reasons are in the drives table)
+EXIT_BUSY = 4  # nothing was done: another run is writing the file (the message names it); retry or --wait
+EXIT_DISK_FULL = 5  # the disk filled up: the run stopped, the file is as the last completed run left it
 EPILOG = ("Docs: README.md and docs/ in the repository. Exit codes: 0 done, 1 unexpected failure, 2 bad input, "
-          "3 ingest done but some drives rejected.")
+          "3 ingest done but some drives rejected, 4 another run is writing the file, 5 disk full.")
 
 
 def _set_pairs(items: list[str]) -> dict[str, str]:
@@ -49,7 +51,7 @@ def cmd_ingest(args: argparse.Namespace) -> int:
                   "(status = 'rejected', reject_reason)")
             return EXIT_REJECTED
         return EXIT_OK
-    summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet))
+    summary = ingest(args.format, args.paths, args.db, progress=_say(args.quiet), wait_s=args.wait)
     print(f"{args.db}: {summary}")
     if summary.rejected:
         print(f"{summary.rejected} drive(s) rejected, each with its reason: logiq-sql query --db {args.db} "
@@ -77,13 +79,13 @@ def cmd_match(args: argparse.Namespace) -> int:
         from logiq_sql.dataset import attach
 
         args.db = args.db or str(Path(args.out) / "logiq.duckdb")
-        with db.connect(args.db) as con:  # its canonical tables become views over the dataset
+        with db.open_for_write(args.db, args.wait, _say(args.quiet)) as con:  # its input tables: views over DIR
             attach(con, args.dataset)
         spark_tables = spark_tables or args.dataset  # Spark reads the dataset itself
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
                    progress=_say(args.quiet), force=args.force, engine=args.engine,
-                   spark_master=args.spark_master, spark_tables=spark_tables)
+                   spark_master=args.spark_master, spark_tables=spark_tables, wait_s=args.wait)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -129,11 +131,11 @@ def cmd_query(args: argparse.Namespace) -> int:
     import duckdb
     import polars as pl
 
-    from logiq_sql.db import connect
+    from logiq_sql.db import open_for_read
 
     if not Path(args.db).is_file():
         raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")
-    with connect(args.db, read_only=True) as con:
+    with open_for_read(args.db) as con:
         try:
             frame = con.sql(args.sql).pl()
         except duckdb.Error as exc:  # the analyst's SQL: a bad-input error, not a crash
@@ -190,6 +192,12 @@ def add_export_parser(sub) -> None:
     o.set_defaults(func=cmd_export_openlabel)
 
 
+def _add_wait(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
+                   help="when another run is writing the file, wait up to this long for it (a progress line every "
+                        "10 s) instead of stopping at once with exit code 4 (default 0)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
@@ -211,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "partitioned by drive into DIR, file by file, so many machines can ingest into one DIR "
                    "(docs/engines.md)")
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
+    _add_wait(p)
     p.set_defaults(func=cmd_ingest)
 
     p = sub.add_parser("simulate", help="simulate drives with Eclipse SUMO (optional extra [sumo])", epilog=EPILOG,
@@ -257,6 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spark-tables", metavar="DIR",
                    help="where --engine spark writes the canonical tables as Parquet (partitioned by drive_id) for "
                         "Spark to read; on a cluster, a folder every executor can read (default: a temporary folder)")
+    _add_wait(p)
     p.set_defaults(func=cmd_match)
 
     p = sub.add_parser("scenarios", help="list scenarios with their parameters and defaults", epilog=EPILOG)
@@ -320,6 +330,12 @@ def main(argv: list[str] | None = None) -> int:
     except LogiqError as exc:
         print(f"logiq-sql: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except FileBusyError as exc:
+        print(f"logiq-sql: busy: {exc}", file=sys.stderr)
+        return EXIT_BUSY
+    except DiskFullError as exc:
+        print(f"logiq-sql: disk full: {exc}", file=sys.stderr)
+        return EXIT_DISK_FULL
 
 
 if __name__ == "__main__":

@@ -105,7 +105,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     if not s.frames_query or not all(p.conditions for p in s.phases):
         raise ScenarioError(f"explain: scenario '{s.name}' has per-phase queries without listed conditions; "
                             "explain covers scenarios whose phases list their conditions ([match] frames).")
-    con = db.connect(db_path, read_only=True)
+    con = db.open_for_read(db_path)
     try:
         known = [r[0] for r in con.execute("select drive_id from drive_inputs").fetchall()]
         if drive not in known:

@@ -71,18 +71,18 @@ BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track
 
 
 def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
-           progress: Callable[[str], None] | None = None) -> IngestSummary:
-    """Read every file of ``paths`` with the ``fmt`` reader into the DuckDB file ``db_path``."""
+           progress: Callable[[str], None] | None = None, wait_s: float = 0.0) -> IngestSummary:
+    """Read every file of ``paths`` with the ``fmt`` reader into the DuckDB file ``db_path``, published to its
+    readers when every file is read (``db.open_for_write``; ``wait_s``: how long to wait for another writer)."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format '{fmt}'.{did_you_mean(fmt, FORMATS)} Formats: {', '.join(FORMATS)}.")
     reader = _reader(fmt)
     files = expand(fmt, paths)
-    con = db.connect(db_path)
     summary = IngestSummary()
     batch: list[DriveData] = []
     batch_rows = 0
     seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
-    try:
+    with db.open_for_write(db_path, wait_s, progress) as con:
         for i, path in enumerate(files, 1):
             count = 0
             try:
@@ -104,8 +104,6 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
             if progress:
                 progress(f"[{i}/{len(files)}] {path.name}: {count} drive(s)")
         _count(summary, write_drives(con, batch))
-    finally:
-        con.close()
     return summary
 
 

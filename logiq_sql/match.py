@@ -16,6 +16,7 @@ While a batch runs, its queries read only its drives' rows of tracks, track_lane
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 from collections.abc import Callable
@@ -269,7 +270,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
           spark_master: str | None = None, spark_tables: str | Path | None = None,
-          batch_rows: int = MATCH_BATCH_ROWS) -> MatchResult:
+          batch_rows: int = MATCH_BATCH_ROWS, wait_s: float = 0.0) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -288,19 +289,21 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         spark_master: Spark master URL for ``engine="spark"`` (default: $SPARK_MASTER, else ``local[2]``).
         spark_tables: folder the canonical tables are written to as Parquet for Spark (default: a temporary one).
         batch_rows: match the drives in batches of about this many track rows (a drive is never split); each
-            batch is stored in its own transaction, so a killed run keeps the batches it finished.
+            batch is stored in its own transaction, so a killed run keeps the batches it finished (in its copy of
+            the file, taken up by the next run).
+        wait_s: how long to wait for another run writing the file (``db.open_for_write``; the results are
+            published to readers when the run completes).
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {})
     ego_values = parse_ego(ego)
     range_m = units.parse(relation_range, "length", "--relation-range")
-    con = db.connect(db_path)
-    runner = None
-    try:
+    with db.open_for_write(db_path, wait_s, say) as con, contextlib.ExitStack() as cleanup:
         run_drives = _run_drives(con, drives)
         check_engine(engine, [rel for s in chosen for _, rel in scenario_steps(s)]
                      + ["match/identify.sql", *(rel for s in chosen for rel in s.kpi_queries)])
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
+        cleanup.callback(runner.close)
         _ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
         # scenarios that share a lane tolerance and the drives still to match share their relations
@@ -338,10 +341,6 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         if out is not None:
             export(con, out)
         return result
-    finally:
-        if runner is not None:
-            runner.close()
-        con.close()
 
 
 def _run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.DataFrame:

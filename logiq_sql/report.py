@@ -16,7 +16,7 @@ import matplotlib
 import polars as pl
 
 from logiq_sql import plots
-from logiq_sql.db import connect
+from logiq_sql.db import open_for_read
 from logiq_sql.errors import InputError
 
 MATCH_COLUMNS = ("scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s", "params_hash")
@@ -89,7 +89,7 @@ def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | Non
 def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
         raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
-    with connect(db, read_only=True) as con:
+    with open_for_read(db) as con:
         return {
             "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
                               "rows_rejected, reject_reason from drives order by status, drive_id").pl(),

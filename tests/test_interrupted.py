@@ -119,10 +119,13 @@ def test_a_killed_ingest_leaves_whole_drives_and_a_rerun_completes_it(tmp_path, 
                          kill_after=f"[{len(SCENES) * 2 // 3}/{len(SCENES)}]")
     assert code == -signal.SIGKILL
     assert f"[{len(SCENES)}/{len(SCENES)}]" not in progress
-    assert_consistent(db)
-    written = count(db, "select count(*) from drive_inputs")
+    assert not db.exists()  # nothing published: readers see no half-ingested file
+    work = db.with_name(db.name + ".writing")  # the run's own copy, consistent at its last commit
+    assert_consistent(work)
+    written = count(work, "select count(*) from drive_inputs")
     assert 0 < written < len(SCENES)  # killed with some batches committed and the rest not written
-    assert cli(["-c", INGEST, "ingest", "commonroad", *map(str, SCENES), "--db", str(db)])[0] == 0
+    code, progress = cli(["-c", INGEST, "ingest", "commonroad", *map(str, SCENES), "--db", str(db)])
+    assert code == 0 and "taking up the unpublished work" in progress
     assert cli([*MATCH, "--db", str(db)])[0] == 0
     assert_consistent(db)
     assert_same(snapshot(db), snapshot(reference))
