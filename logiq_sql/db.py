@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -445,9 +446,13 @@ class Writer:
 
 
 def open_for_write(path: str | Path, wait_s: float = 0.0,
-                   progress: Callable[[str], None] | None = None) -> Writer:
+                   progress: Callable[[str], None] | None = None) -> Writer | contextlib.closing:
     """``with open_for_write(path) as con:`` a run's connection, to its own copy of the file, published when the
-    block completes. Waits up to ``wait_s`` seconds for another writer, else raises FileBusyError naming it."""
+    block completes. Waits up to ``wait_s`` seconds for another writer, else raises FileBusyError naming it.
+    A named in-memory database (``:memory:NAME``, as ``match_frames`` uses) has no file to copy and no other
+    process to share it with: it is written in place."""
+    if str(path).startswith(":memory:"):
+        return contextlib.closing(connect(path))
     return Writer(path, wait_s, progress)
 
 
