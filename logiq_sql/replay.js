@@ -168,11 +168,13 @@
       const top = y0 + k * ph + 16, height = ph - 30;
       const names = panel[1].filter((c) => d.series[c]);
       const values = [].concat(...names.map((c) => d.series[c])).filter((v) => v !== null && isFinite(v));
-      const lo = Math.min(0, ...values), hi = Math.max(1, ...values);
-      const X = (j) => x0 + (d.n > 1 ? j / (d.n - 1) : 0) * w, Y = (v) => top + height - (v - lo) / (hi - lo) * height;
+      const lo = Math.min(0, ...values), hi = panel[2] ? Math.min(Math.max(1, ...values), panel[2])
+        : Math.max(1, ...values);
+      const X = (j) => x0 + (d.n > 1 ? j / (d.n - 1) : 0) * w;
+      const Y = (v) => top + height - (Math.min(v, hi) - lo) / (hi - lo) * height;
       ctx.strokeStyle = '#ccc'; ctx.lineWidth = 1; ctx.strokeRect(x0, top, w, height);
       let text = panel[0];
-      if (panel[0].startsWith('TTC') && d.meta.pet_s !== null && d.meta.pet_s !== undefined) {
+      if (panel[0].includes('TTC') && d.meta.pet_s !== null && d.meta.pet_s !== undefined) {
         text += ', PET ' + d.meta.pet_s.toFixed(2) + ' s';
       }
       ctx.fillStyle = '#222'; ctx.fillText(text + '  (' + lo.toFixed(0) + ' to ' + hi.toFixed(0) + ')', x0, top - 4);

@@ -35,9 +35,10 @@ BATCH = 400  # matches read per query: bounds memory for files with thousands of
 # the values plotted under the map: (column, label, scale of the stored integers)
 SERIES = (("lon_gap_m", "gap (m)", 0.1), ("time_headway_s", "headway (s)", 0.1), ("ttc_s", "TTC (s)", 0.1),
           ("ego_speed_mps", "ego speed (m/s)", 0.1), ("actor_speed_mps", "actor speed (m/s)", 0.1))
-# chart panels: which series share one panel
-PANELS = (("gap and headway", ("lon_gap_m", "time_headway_s")), ("TTC (s)", ("ttc_s",)),
-          ("speed (m/s)", ("ego_speed_mps", "actor_speed_mps")))
+# chart panels: title, the series sharing it, the top of its axis at most (a headway of a crawling car runs to
+# hundreds of seconds; values above are drawn at the top edge)
+PANELS = (("gap (m)", ("lon_gap_m",), None), ("headway and TTC (s)", ("time_headway_s", "ttc_s"), 10.0),
+          ("speed (m/s)", ("ego_speed_mps", "actor_speed_mps"), None))
 SERIES_COLOURS = {"lon_gap_m": "#2c7fb8", "time_headway_s": "#7fcdbb", "ttc_s": "#d95f0e",
                   "ego_speed_mps": EGO_COLOUR, "actor_speed_mps": ACTOR_COLOUR}
 STYLE = {
@@ -329,7 +330,7 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
                  f"match {s['start_s']:.1f} to {s['end_s']:.1f} s", fontsize=8, x=0.01, ha="left", y=0.995)
     ax = fig.add_axes(_axes_rect(LAYOUT["map"], (0.04, 0.05, 0.0, 0.03)))
     ax.set_facecolor(STYLE["background"])
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.tick_params(labelsize=6)
     ax.add_collection(PolyCollection(d["lanes"], facecolor=STYLE["lane_fill"], edgecolor=STYLE["lane_edge"],
                                      linewidth=0.6, zorder=1))
@@ -358,20 +359,25 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
     values = []
     label = {c: name for c, name, _ in SERIES}
     rows = len(PANELS)
-    for k, (title, columns) in enumerate(PANELS):
+    for k, (title, columns, cap) in enumerate(PANELS):
         x, y, w, h = LAYOUT["charts"]
         part = [x, y + k * h / rows, w, h / rows]
         cax = fig.add_axes(_axes_rect(part, (0.02, 0.05, 0.01, 0.03)))
         cax.tick_params(labelsize=6)
         cax.set_xlim(0, max(n - 1, 1))
-        if title.startswith("TTC") and s.get("pet_s") is not None:
+        if "TTC" in title and s.get("pet_s") is not None:
             title += f", PET {s['pet_s']:.2f} s"
         cax.set_title(title, fontsize=7, loc="left")
         for j, c in enumerate(columns):
             series = d["series"][c]
-            cax.plot(np.arange(n), series, color=STYLE["series"][c], linewidth=1.2)
+            cax.plot(np.arange(n), np.minimum(series, cap) if cap else series, color=STYLE["series"][c],
+                     linewidth=1.2)
             values.append((cax.text(0.02 + j * 0.5, 0.85, "", transform=cax.transAxes, fontsize=6,
                                     color=STYLE["series"][c]), series, label[c]))
+        shown = np.concatenate([d["series"][c] for c in columns])
+        shown = shown[np.isfinite(shown)]
+        top = max(1.0, float(shown.max()) if shown.size else 1.0)
+        cax.set_ylim(min(0.0, float(shown.min()) if shown.size else 0.0), min(top, cap) if cap else top * 1.05)
         cursors.append(cax.axvline(0, color="black", linewidth=1))
 
     def draw(i: int):
