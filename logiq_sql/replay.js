@@ -13,7 +13,7 @@
   const title = document.getElementById('replay-title');
   const playButton = document.getElementById('replay-play');
   const maps = {};
-  let scene = null, frame = 0, timer = null, token = 0;
+  let scene = null, frame = 0, timer = null, token = 0, shown = null;
 
   async function unpack(id) {
     const text = document.getElementById(id).textContent.trim();
@@ -211,8 +211,8 @@
     label.textContent = 'frame ' + (frame + 1) + ' of ' + scene.n + ', t = ' + scene.t[frame].toFixed(2) + ' s'
       + (phase.length ? ', phase ' + phase.map((p) => p[0] + '. ' + p[1]).join(' + ') : ', outside the phases');
     dialog.dataset.frame = frame;
-    window.logiqReplay.state = {
-      match: scene.meta.id, frame: frame, n: scene.n, playing: timer !== null,
+    shown = {
+      match: scene.meta.id, frame: frame, n: scene.n,
       ego: [scene.ego.x[frame], scene.ego.y[frame]], egoPx: state.ego, actorPx: state.actor,
     };
   }
@@ -251,7 +251,11 @@
     dialog.dataset.ready = s.id;
   }
 
-  window.logiqReplay = { open: open, play: play, pause: pause, show: (i) => show(i), state: null };
+  // what is on the screen, for tests and for the console
+  window.logiqReplay = {
+    open: open, play: play, pause: pause, show: (i) => show(i),
+    get state() { return shown && Object.assign({ playing: timer !== null }, shown); },
+  };
   // one listener for every row, however many matches the table has
   document.addEventListener('click', (event) => {
     const button = event.target.closest('button[data-replay]');
