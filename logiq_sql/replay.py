@@ -30,6 +30,7 @@ MARGIN_S = 1.0  # shown before and after the match
 OTHERS_RANGE_M = 60.0  # other road users within this distance of the ego are drawn (faint)
 QUANTUM_M = 0.1  # positions and box sizes are stored in decimetres
 VIEW_MIN_M, VIEW_MAX_M = 18.0, 60.0  # half-width of the view that follows the ego
+ANY_RANGE_M = 1e9  # the pairs are chosen already: relations.sql must not drop any by distance
 BATCH = 400  # matches read per query: bounds memory for files with thousands of matches
 
 # the values plotted under the map: (column, label, scale of the stored integers)
@@ -65,7 +66,15 @@ RELATION_INPUTS = {
                   "cast(null as varchar) as line_lane_id where false"),
 }
 REPLAY_JS = (Path(__file__).parent / "replay.js").read_text(encoding="utf-8")
-ANY_RANGE_M = 1e9  # the pairs are chosen already: relations.sql must not drop any by distance
+
+
+# the replay's query files in the order they run, each becoming the table named first (lint checks them on Spark;
+# pair_relations is relations.sql over the RELATION_INPUTS stand-ins), and their parameters
+STEPS = (("replay_windows", "replay/windows.sql"), ("pair_tracks", "replay/pair_tracks.sql"),
+         ("pair_relations", "relations/relations.sql"), ("replay_frames", "replay/match_frames.sql"),
+         ("replay_others", "replay/others.sql"))
+PARAMS = {"margin_s": MARGIN_S, "others_range_m": OTHERS_RANGE_M, "relation_range_m": ANY_RANGE_M,
+          "object_relation_range_m": ANY_RANGE_M}
 
 
 def _relations_sql() -> str:
@@ -99,14 +108,14 @@ def _q(expr: pl.Expr, scale: float) -> pl.Expr:
 def _frames(con: duckdb.DuckDBPyConnection, ids: list[str]) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
     con.execute("create or replace temp table replay_ids as select unnest($ids) as match_id", {"ids": ids})
     con.execute("create or replace temp table replay_windows as " + query_text("replay/windows.sql"),
-                bind("replay/windows.sql", {"margin_s": MARGIN_S}))
+                bind("replay/windows.sql", PARAMS))
     con.execute("create or replace temp table pair_tracks as " + query_text("replay/pair_tracks.sql"))
     con.execute("create or replace temp table pair_relations as " + _relations_sql(),
-                {"relation_range_m": ANY_RANGE_M, "object_relation_range_m": ANY_RANGE_M})
+                bind("relations/relations.sql", PARAMS))
     windows = con.sql("select * from replay_windows").pl()
     frames = con.sql(query_text("replay/match_frames.sql")).pl()
     others = con.sql(query_text("replay/others.sql"),
-                     params=bind("replay/others.sql", {"others_range_m": OTHERS_RANGE_M})).pl()
+                     params=bind("replay/others.sql", PARAMS)).pl()
     return windows, frames, others
 
 
