@@ -92,12 +92,9 @@ def _delta(column: str, by: str = "match_id") -> pl.Expr:
 
 
 def _undelta(values: list) -> np.ndarray:
-    out = np.full(len(values), np.nan)
-    last = 0
-    for i, v in enumerate(values):
-        if v is not None:
-            last += v
-            out[i] = last
+    steps = np.array(values, dtype=float)  # None -> NaN
+    out = np.cumsum(np.nan_to_num(steps))
+    out[np.isnan(steps)] = np.nan
     return out
 
 
@@ -143,8 +140,9 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
         _q(pl.col("actor_length_m").median(), q).alias("al"), _q(pl.col("actor_width_m").median(), q).alias("aw"))
     index = frames.select("match_id", "frame", "i", "ox", "oy")
     other = (others.join(index, on=["match_id", "frame"]).sort("match_id", "actor_id", "frame")
-             .with_columns(_q(pl.col("x_m") - pl.col("ox"), q).alias("x"), _q(pl.col("y_m") - pl.col("oy"), q).alias("y"),
-                           _q(pl.col("heading_rad"), 0.01).alias("h"), pl.concat_str("match_id", "actor_id").alias("key"))
+             .with_columns(_q(pl.col("x_m") - pl.col("ox"), q).alias("x"),
+                           _q(pl.col("y_m") - pl.col("oy"), q).alias("y"), _q(pl.col("heading_rad"), 0.01).alias("h"),
+                           pl.concat_str("match_id", "actor_id").alias("key"))
              .with_columns(*[_delta(c, "key") for c in ("i", "x", "y", "h")])
              .group_by("match_id", "actor_id", maintain_order=True)
              .agg(pl.col("kind").first().alias("k"), "i", "x", "y", "h",
@@ -165,7 +163,8 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
         out.append({
             "id": r["match_id"], "scenario": r["scenario"], "drive": r["drive_id"], "map": r["map_id"],
             "ego": r["ego_id"], "actor": r["actor_id"], "start_s": r["start_s"], "end_s": r["end_s"],
-            "t0": r["t0"], "dt": r["dt_s"], "origin": [r["ox"], r["oy"]], "q": QUANTUM_M, "view_m": round(r["view_m"], 1),
+            "t0": r["t0"], "dt": r["dt_s"], "origin": [r["ox"], r["oy"]], "q": QUANTUM_M,
+            "view_m": round(r["view_m"], 1),
             "pet_s": pet.get(r["match_id"]),
             "f": r["frame"],
             "e": {"x": r["ex"], "y": r["ey"], "h": r["eh"], "l": r["el"], "w": r["ew"]},
@@ -282,7 +281,7 @@ def decode(s: dict) -> dict:
         x[idx], y[idx], h[idx] = _undelta(o["x"]) * q + ox, _undelta(o["y"]) * q + oy, _undelta(o["h"]) * 0.01
         others.append({"x": x, "y": y, "h": h, "l": o["l"] * q, "w": o["w"] * q, "kind": o["k"]})
     scale = {c: k for c, _, k in SERIES}
-    series = {c: np.array([np.nan if v is None else v * scale[c] for v in vals]) for c, vals in s["s"].items()}
+    series = {c: np.array(vals, dtype=float) * scale[c] for c, vals in s["s"].items()}
     lanes, junctions = [], []
     if s.get("lanes"):
         m = s["lanes"]
@@ -295,11 +294,10 @@ def decode(s: dict) -> dict:
 
 
 def box_corners(x: float, y: float, h: float, length: float, width: float) -> np.ndarray:
-    """The four corners of a box (front left first) plus the nose point that shows its heading."""
+    """The four corners of a box centred on (x, y) with heading h: front left, front right, rear right, rear left."""
     c, s = np.cos(h), np.sin(h)
     along = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [length / 2, width / 2]
-    corners = np.column_stack([x + along[:, 0] * c - along[:, 1] * s, y + along[:, 0] * s + along[:, 1] * c])
-    return corners
+    return np.column_stack([x + along[:, 0] * c - along[:, 1] * s, y + along[:, 0] * s + along[:, 1] * c])
 
 
 # ---- matplotlib (notebooks, GIF and MP4): the same scene, layout and colours as REPLAY_JS ----

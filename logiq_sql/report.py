@@ -22,7 +22,8 @@ from logiq_sql import plots, replay
 from logiq_sql.db import connect
 from logiq_sql.errors import InputError
 
-MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s", "params_hash")
+MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s",
+                 "params_hash")
 
 STYLE = """
 body { font: 14px/1.4 system-ui, sans-serif; margin: 1.5em auto; max-width: 1200px; color: #222; }
@@ -129,8 +130,9 @@ def _replays(db: str | Path, matches: pl.DataFrame) -> str:
     tags += [f'<script type="application/x-gzip-base64" id="rp-{k}">{replay.pack(by_id[m])}</script>'
              for k, m in enumerate(matches["match_id"]) if m in by_id]
     key = "".join(f'<i style="background:{c}"></i>{html.escape(n)}' for n, c in (
-        ("ego (SUT)", replay.STYLE["ego"]), ("actor", replay.STYLE["actor"]), ("other road users", replay.STYLE["other"]),
-        ("lanes", replay.STYLE["lane_fill"]), ("junctions", replay.STYLE["junction_fill"])))
+        ("ego (SUT)", replay.STYLE["ego"]), ("actor", replay.STYLE["actor"]),
+        ("other road users", replay.STYLE["other"]), ("lanes", replay.STYLE["lane_fill"]),
+        ("junctions", replay.STYLE["junction_fill"])))
     dialog = (
         '<dialog id="replay"><div class="replay-head"><span id="replay-title"></span>'
         '<button id="replay-close">close</button></div>'

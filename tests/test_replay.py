@@ -66,7 +66,8 @@ def test_the_gap_over_the_match_is_the_kpi_gap(db, all_scenes):
     scenes, _ = all_scenes
     with connect(db, read_only=True) as con:
         kpi = dict(con.execute("select match_id, ego_min_distance_to_vehicle_m from kpis join matches "
-                               "using (match_id, scenario) where ego_min_distance_to_vehicle_m is not null and scenario in ('follower_vehicle', 'sut_cut_out')").fetchall())
+                               "using (match_id, scenario) where ego_min_distance_to_vehicle_m is not null "
+                               "and scenario in ('follower_vehicle', 'sut_cut_out')").fetchall())
     checked = 0
     for s in scenes:
         if s["id"] in kpi:
