@@ -198,6 +198,13 @@ def _add_wait(p: argparse.ArgumentParser) -> None:
                         "10 s) instead of stopping at once with exit code 4 (default 0)")
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    from logiq_sql.replay import save
+
+    print(f"replay of {args.match_id} written to {save(args.db, args.match_id, args.out, args.step).resolve()}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
@@ -316,6 +323,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
     p.add_argument("--out", required=True, metavar="FILE", help="HTML file to write, e.g. report.html")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("replay", help="write the animated bird's-eye replay of one match as a GIF or an MP4",
+                       epilog=EPILOG, description="The replay the report shows (lanes, junctions, the ego and the "
+                       "actor as boxes, the phases on a timeline, gap, headway, TTC and speeds), as a GIF (Pillow) "
+                       "or an MP4 (ffmpeg from imageio-ffmpeg). match_id: the matches table's first column.")
+    p.add_argument("match_id", metavar="MATCH_ID")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest and match")
+    p.add_argument("--out", required=True, metavar="FILE", help="file to write: .gif or .mp4")
+    p.add_argument("--step", type=int, default=None, metavar="N",
+                   help="draw every N-th frame (default: at most 150 frames)")
+    p.set_defaults(func=cmd_replay)
 
     add_label_parser(sub)
     add_evaluate_parser(sub)

@@ -135,13 +135,14 @@ def _parameters(path: Path) -> set[str]:
 
 # tables the queries read that are not canonical inputs: what the matcher registers or stores around the steps
 def _side_tables():
-    from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES
+    from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCHES
     from logiq_sql.encroachment import ENCROACHMENTS_SCHEMA
     from logiq_sql.schema import TRACKS
 
     return {"run_drives": {"drive_id": pl.String}, "tracks_raw": TRACKS.polars_schema,
             "encroachments": ENCROACHMENTS_SCHEMA, "coverage_samples": COVERAGE_SAMPLES.polars_schema,
-            "coverage_buckets": COVERAGE_BUCKETS.polars_schema}
+            "coverage_buckets": COVERAGE_BUCKETS.polars_schema, "matches": MATCHES.polars_schema,
+            "replay_ids": {"match_id": pl.String}}
 
 
 def spark_problems(spark, root: Path | None = None) -> list[str]:
@@ -151,6 +152,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     session (tests/test_spark.py)."""
     from pyspark.sql import types as T
 
+    from logiq_sql import replay
     from logiq_sql.engines import INPUT_TABLES, _spark_type, spark_text
     from logiq_sql.match import parse_ego, run_values, scenario_steps
     from logiq_sql.scenario import list_scenarios
@@ -166,6 +168,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
         runs += [(t, rel, values) for t, rel in scenario_steps(s)]
         runs += [("scenario_matches", "match/identify.sql", values), *[("_kpi", rel, values) for rel in s.kpi_queries]]
     runs += [("_staged", "staging/tracks.sql", {}), ("_coverage", "coverage/histogram.sql", {})]
+    runs += [(t, rel, values | replay.PARAMS) for t, rel in replay.STEPS]  # after the relations steps it reads
     problems, seen = [], set()
     for table, rel, values in runs:
         seen.add(rel)

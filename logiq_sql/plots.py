@@ -128,7 +128,8 @@ def birds_eye(db: str | Path | duckdb.DuckDBPyConnection, match_id: str, margin_
     if not junctions.is_empty():
         handles.append(Patch(facecolor="#f5c16c", edgecolor="#b07d1a", alpha=0.45))
         labels.append("junction")
-    ax.legend(handles, labels, fontsize=7, loc="best")
+    # below the map, never over the cars
+    fig.legend(handles, labels, fontsize=7, loc="outside lower center", ncols=2)
     ax.set_title(f"{m['scenario']}\n{m['drive_id']}, {m['start_s']:.1f}-{m['end_s']:.1f} s", fontsize=10)
     return fig
 

@@ -1,6 +1,8 @@
 """One self-contained HTML report of a matched DuckDB file, for scheduled runs.
 
 Charts are inline SVG drawn by ``logiq_sql.plots``; the match table's filter is a few lines of inline JavaScript.
+Every match opens an animated replay (``logiq_sql.replay``): its scene is embedded as gzip + base64 JSON and
+decoded by ``replay.js`` only when opened, so thousands of matches cost their bytes, not their drawing time.
 Nothing is fetched from the network, so the file can be mailed, archived or opened offline.
 """
 
@@ -9,17 +11,19 @@ from __future__ import annotations
 import datetime as dt
 import html
 import io
+import json
 import re
 from pathlib import Path
 
 import matplotlib
 import polars as pl
 
-from logiq_sql import plots
+from logiq_sql import plots, replay
 from logiq_sql.db import open_for_read
 from logiq_sql.errors import InputError
 
-MATCH_COLUMNS = ("scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s", "params_hash")
+MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s",
+                 "params_hash")
 
 STYLE = """
 body { font: 14px/1.4 system-ui, sans-serif; margin: 1.5em auto; max-width: 1200px; color: #222; }
@@ -35,6 +39,13 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .chart svg { max-width: 100%; height: auto; }
 .filters { margin: .5em 0; display: flex; gap: 1em; align-items: center; }
 .status-rejected { color: #b00; } .status-matched { color: #060; }
+button[data-replay] { font-size: 11px; padding: 0 6px; cursor: pointer; }
+dialog#replay { padding: .5em 1em; border: 1px solid #888; border-radius: 6px; max-width: 1010px; }
+dialog#replay::backdrop { background: rgba(0, 0, 0, .35); }
+.replay-head, .replay-controls { display: flex; gap: .6em; align-items: center; margin: .3em 0; font-size: 12px; }
+.replay-head span { flex: 1; } #replay-slider { flex: 1; }
+.key { font-size: 11px; color: #555; }
+.key i { display: inline-block; width: 10px; height: 10px; margin: 0 3px 0 8px; vertical-align: middle; }
 """
 
 # filters the match table by scenario and by free text over every cell
@@ -70,12 +81,14 @@ def _svg(fig) -> str:
     return '<div class="chart">' + text[text.index("<svg"):] + "</div>"
 
 
-def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | None = None) -> str:
+def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | None = None,
+           replays: bool = False) -> str:
+    """An HTML table of ``frame``; with ``replays``, a first column of buttons opening replay k of row k."""
     numeric = {c for c, t in frame.schema.items() if t.is_numeric()}
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in frame.columns)
+    head = ("<th>replay</th>" if replays else "") + "".join(f"<th>{html.escape(c)}</th>" for c in frame.columns)
     body = []
-    for row in frame.iter_rows(named=True):
-        cells = []
+    for k, row in enumerate(frame.iter_rows(named=True)):
+        cells = [f'<td><button data-replay="{k}" title="replay this match">&#9654;</button></td>'] if replays else []
         for c, v in row.items():
             text = "" if v is None else (f"{v:.2f}" if isinstance(v, float) else str(v))
             css = ' class="num"' if c in numeric else (f' class="status-{html.escape(text)}"' if c == "status" else "")
@@ -89,8 +102,8 @@ def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | Non
 def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
         raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
-    with open_for_read(db) as con:
-        return {
+    with open_for_read(db) as con:  # one connection: the tables and the replays are of one published state
+        data = {
             "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
                               "rows_rejected, reject_reason from drives order by status, drive_id").pl(),
             "matches": con.sql(f"select {', '.join(MATCH_COLUMNS)} from matches "
@@ -100,6 +113,41 @@ def _load(db: str | Path) -> dict[str, pl.DataFrame]:
             "runs": con.sql("select run_id, started_at, scenario, scenario_version, params_hash, overrides, ego_mode, "
                             "drives, matches from match_runs order by run_id desc, scenario").pl(),
         }
+        data["scenes"], data["maps"] = replay.scenes(con, data["matches"]["match_id"].to_list())
+    return data
+
+
+def _replays(matches: pl.DataFrame, scenes: list[dict], maps: dict) -> str:
+    """The replay dialog, its configuration and one packed scene per match row (``rp-<row>``), one per map
+    (``rm-<k>``)."""
+    by_id = {s["id"]: s for s in scenes}
+    map_keys = {m: k for k, m in enumerate(maps)}
+    config = {"layout": replay.LAYOUT, "style": replay.STYLE, "series": replay.SERIES, "panels": replay.PANELS,
+              "maps": map_keys}
+    tags = [f'<script type="application/json" id="replay-config">{_json(config)}</script>']
+    tags += [f'<script type="application/x-gzip-base64" id="rm-{k}">{replay.pack(maps[m])}</script>'
+             for m, k in map_keys.items()]
+    tags += [f'<script type="application/x-gzip-base64" id="rp-{k}">{replay.pack(by_id[m])}</script>'
+             for k, m in enumerate(matches["match_id"]) if m in by_id]
+    key = "".join(f'<i style="background:{c}"></i>{html.escape(n)}' for n, c in (
+        ("ego (SUT)", replay.STYLE["ego"]), ("actor", replay.STYLE["actor"]),
+        ("other road users", replay.STYLE["other"]), ("lanes", replay.STYLE["lane_fill"]),
+        ("junctions", replay.STYLE["junction_fill"])))
+    dialog = (
+        '<dialog id="replay"><div class="replay-head"><span id="replay-title"></span>'
+        '<button id="replay-close">close</button></div>'
+        f'<div class="key">{key}; white line: heading; trails: path so far; the view follows the ego</div>'
+        f'<canvas id="replay-canvas" width="{replay.LAYOUT["width"]}" height="{replay.LAYOUT["height"]}"></canvas>'
+        '<div class="replay-controls"><button id="replay-back">&#9664; step</button>'
+        '<button id="replay-play">play</button><button id="replay-next">step &#9654;</button>'
+        '<input id="replay-slider" type="range" min="0" max="0" value="0"><span id="replay-frame"></span></div>'
+        "</dialog>")
+    return dialog + "\n" + "\n".join(tags)
+
+
+def _json(value: object) -> str:
+    """JSON safe inside a <script> element."""
+    return json.dumps(value, separators=(",", ":")).replace("</", "<\\/")
 
 
 def report(db: str | Path, out: str | Path) -> Path:
@@ -132,7 +180,10 @@ def report(db: str | Path, out: str | Path) -> Path:
         ('<div class="filters"><label>scenario <select id="scenario-filter"><option value="">all</option>'
          f'{options}</select></label><label>contains <input id="text-filter" type="search" '
          'placeholder="drive, actor, ..."></label><span id="match-count"></span></div>'),
-        '<div class="scroll">' + _table(matches, "matches", row_attr="scenario") + "</div>",
+        ("<p>&#9654; opens the match's replay: lanes and junctions, the ego and the actor as boxes with their "
+         "headings, the phases on a timeline, gap, headway, TTC and speeds over time (PET where the scenario "
+         "measures it). Play, pause, step or drag the slider.</p>"),
+        '<div class="scroll">' + _table(matches, "matches", row_attr="scenario", replays=True) + "</div>",
         "<h2>Drives</h2><p>Every drive that went in, with its status over all scenarios run.</p>",
         '<div class="scroll">' + _table(drives, "drives") + "</div>",
         "<h2>Runs</h2><p>Every match run and the parameters it used (params_json in the match_runs table).</p>",
@@ -140,7 +191,8 @@ def report(db: str | Path, out: str | Path) -> Path:
     ]
     page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>logiq_sql report: '
             f'{html.escape(Path(db).name)}</title><style>{STYLE}</style></head><body>\n' + "\n".join(parts)
-            + f"\n<script>{SCRIPT}</script>\n</body></html>\n")
+            + "\n" + _replays(matches, data["scenes"], data["maps"])
+            + f"\n<script>{SCRIPT}</script>\n<script>{replay.REPLAY_JS}</script>\n</body></html>\n")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(page, encoding="utf-8")

@@ -3,6 +3,7 @@ report opened in headless Chromium."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import sys
@@ -138,6 +139,65 @@ def test_report_renders_in_headless_chromium(matched_db, tmp_path):
     assert errors == []
     assert requests == [html.as_uri()]
     assert screenshot.stat().st_size > 20_000
+
+
+# one match of each scenario by the drive it is on, and the follower of the nuScenes scene (a recorded ego on a
+# city map); the file's cyclist matches are all on the simulated junction
+REPLAYS = [("follower_vehicle", "USA_US101"), ("follower_vehicle", "scene-0103"), ("sut_cut_out", "USA_US101"),
+           ("cyclist_close_to_moving_sut", "junction_s1"),
+           ("unprotected_left_turn_with_yield_and_traffic_light", "junction_s1")]
+
+
+def test_replays_play_in_headless_chromium(matched_db, tmp_path):
+    """Open a match of each scenario, play it, step, scrub: the frame, the ego and the picture move; the console
+    stays clean; a screenshot per scenario is kept."""
+    sync_playwright = _chromium()
+    html = tmp_path / "report.html"
+    shots = Path(os.environ.get("LOGIQ_SQL_SCREENSHOT_DIR") or tmp_path)
+    shots.mkdir(parents=True, exist_ok=True)
+    assert main(["report", "--db", str(matched_db), "--out", str(html)]) == 0
+    errors, requests, seen = [], [], []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 1000})
+        page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.on("request", lambda req: requests.append(req.url))
+        page.goto(html.as_uri())
+        page.wait_for_load_state("load")
+        state = "window.logiqReplay.state"
+        for scenario, drive in REPLAYS:
+            row = page.locator(f'#matches tbody tr[data-scenario="{scenario}"]', has_text=drive).first
+            row.locator("button[data-replay]").click()
+            page.wait_for_function("document.getElementById('replay').dataset.ready")
+            start, picture = page.evaluate(state), page.evaluate("document.getElementById('replay-canvas').toDataURL()")
+            assert start["frame"] == 0 and start["n"] > 5 and drive in page.text_content("#replay-title")
+            page.click("#replay-play")
+            assert page.evaluate(state)["playing"]
+            page.wait_for_function(f"{state}.frame >= 5")
+            page.click("#replay-play")  # pause
+            played = page.evaluate(state)
+            assert not played["playing"] and played["frame"] >= 5
+            assert math.dist(played["ego"], start["ego"]) > 0.3  # the ego moved (the view follows it)
+            assert played["actorPx"] != start["actorPx"]  # the actor's box moved on the screen
+            assert page.evaluate("document.getElementById('replay-canvas').toDataURL()") != picture
+            page.click("#replay-next")
+            assert page.evaluate(state)["frame"] == played["frame"] + 1
+            page.click("#replay-back")
+            page.click("#replay-back")
+            assert page.evaluate(state)["frame"] == played["frame"] - 1
+            page.eval_on_selector("#replay-slider", "s => { s.value = s.max; s.dispatchEvent(new Event('input')); }")
+            assert page.evaluate(state)["frame"] == start["n"] - 1
+            page.eval_on_selector("#replay-slider", "s => { s.value = Math.floor(s.max * 0.6); "
+                                  "s.dispatchEvent(new Event('input')); }")
+            page.screenshot(path=str(shots / f"replay_{scenario}_{drive}.png"))
+            seen.append(page.evaluate(state)["match"])
+            page.click("#replay-close")
+        browser.close()
+    assert errors == []
+    assert requests == [html.as_uri()]
+    assert len(set(seen)) == len(REPLAYS)
+    assert all((shots / f"replay_{s}_{d}.png").stat().st_size > 20_000 for s, d in REPLAYS)
 
 
 def test_a_missing_chromium_fails_in_ci_rather_than_skipping(monkeypatch):

@@ -35,6 +35,11 @@ def outputs(nb: nbformat.NotebookNode, kind: str) -> list[str]:
     return found
 
 
+def replays(nb: nbformat.NotebookNode) -> list[str]:
+    """The HTML outputs that are matplotlib animations (replays) with their frames."""
+    return [h for h in outputs(nb, "text/html") if 'class="anim-state"' in h]
+
+
 @pytest.mark.parametrize("name", ["quickstart.ipynb", "exploration.ipynb", "frames.ipynb"])
 def test_committed_notebooks_have_no_outputs(name):
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
@@ -48,14 +53,20 @@ def test_quickstart(tmp_path, monkeypatch):
     assert "unprotected_left_turn_with_yield_and_traffic_light: 17 matches in 1 drive(s)" in printed
     assert "sut_cut_out:" in printed
     assert len(outputs(nb, "image/png")) == 2  # the cut-out timeline and the follower coverage
+    assert len(replays(nb)) == 1  # a cut-out
     assert any("matches_per_scenario" in t for t in outputs(nb, "text/html"))
 
 
 def test_exploration(tmp_path, monkeypatch):
     nb = execute("exploration.ipynb", tmp_path, monkeypatch)
     images = outputs(nb, "image/png")
-    # timeline, two bird's-eye views, four coverage grids, KPI grid
-    assert len(images) == 8
+    # timeline, a bird's-eye view, four coverage grids, KPI grid
+    assert len(images) == 7
+    # the motorway cut-out, then one match of each of the four scenarios, each with its frames
+    assert len(replays(nb)) == 5 and all(r.count("data:image/png;base64") >= 10 for r in replays(nb))
+    printed = "".join(outputs(nb, "stream"))
+    assert all(s in printed for s in ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut",
+                                      "unprotected_left_turn_with_yield_and_traffic_light"))
     tables = "".join(outputs(nb, "text/html"))
     assert "pet_between_sut_and_npc_s" in tables and "empty_buckets" in tables
 
