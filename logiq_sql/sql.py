@@ -16,11 +16,16 @@ from logiq_sql.paths import query_path
 _UNIT_CONSTANT = re.compile(r"^([a-z0-9]+)_per_([a-z0-9]+)$")
 
 
+def shown_path(relative: str) -> str:
+    """A query as people know it: ``queries/<relative>`` for a built-in one, the path of a user's file."""
+    return relative if relative.startswith("/") else f"queries/{relative}"
+
+
 @functools.cache
 def query_text(relative: str) -> str:
     path = query_path(relative)
     if not path.is_file():
-        raise ScenarioError(f"query file queries/{relative} not found.")
+        raise ScenarioError(f"query file {shown_path(relative)} not found.")
     return path.read_text()
 
 
@@ -51,7 +56,7 @@ def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
         elif (const := unit_constant(name)) is not None:
             out[name] = const
         else:
-            raise ScenarioError(f"queries/{relative} uses ${name}, which no scenario parameter provides.")
+            raise ScenarioError(f"{shown_path(relative)} uses ${name}, which no scenario parameter provides.")
     return out
 
 

@@ -59,11 +59,14 @@ def test_phase_minimum_durations(tmp_path):
     assert intervals(match(short_follow, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
     relaxed = match(short_follow, scenarios=[CUT_OUT], overrides={"min_ego_on_same_lane_phase_duration": "0.5s"})
     assert intervals(relaxed.matches, CUT_OUT) == [("ego", "npc", 4.7, 8.3)]
-    # the ego goes back from t = 5.8 s: within the tolerance of the actor's lane again from 6.1 s, so it was
-    # beside the actor for 0.7 s (5.3 .. 6.0), shorter than min_ego_on_side_of_npc_phase_duration
-    back = ramp(t, 4.5, Y1, Y2) - ramp(t, 5.8, 0.0, LANE_W)
+    # the ego goes back from t = 5.5 s: its lane change back into the actor's lane counts at 6.3 s (more than the
+    # 1 m tolerance away from the left lane), so it drove beside the actor for 0.9 s (5.3 .. 6.2), shorter than
+    # min_ego_on_side_of_npc_phase_duration; going back from 5.8 s it is 1.2 s (5.3 .. 6.5), and a match
+    back = ramp(t, 4.5, Y1, Y2) - ramp(t, 5.5, 0.0, LANE_W)
     short_side = make_db(tmp_path / "b", drive(t, back))
     assert intervals(match(short_side, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
+    later = make_db(tmp_path / "c", drive(t, ramp(t, 4.5, Y1, Y2) - ramp(t, 5.8, 0.0, LANE_W)))
+    assert intervals(match(later, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.2, 6.5)]
 
 
 def split_road(x_m: float) -> tuple[list[dict], list[dict]]:

@@ -1,5 +1,6 @@
 -- relations: ego_lanes
--- grain: one row per (drive_id, ego_id, frame): the ego's lane and its lane run
+-- grain: one row per (drive_id, ego_id, frame): the ego's lane (the lane of its lane run), its best lane, and its
+--        lane run
 -- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $lane_calculation_tolerance_length_m
 --
@@ -12,6 +13,15 @@
 --      to the next segment, so a lane change across a segment boundary still counts;
 --   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change.
 -- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
+--
+--   best_lane_id      the lane the ego's centre is in at that frame (actor_lanes)
+--   lane_id           the ego's lane: its best lane, except while a transition is pending (after 1., before 2.
+--                     or 3.), when it is still the lane it came from. Every relation to the ego's lane
+--                     (relations.same_lane, adjacent_side) uses this column, so "same lane", "beside" and
+--                     the lane change agree frame by frame: a leader stays in the ego's lane up to the frame
+--                     before the change, and is beside it from the frame of the change on
+--   lane_change_side  the side the ego moved to, on the frame of the change (the first frame of a lane run)
+--   lane_run          how many lane changes the ego made up to this frame
 with
 
 ego_rows as (
@@ -129,6 +139,7 @@ changes as (
     select
         o.drive_id,
         o.ego_id,
+        o.transition_frame,
         o.side,
         min(o.frame) as frame
     from old_lane as o
@@ -139,18 +150,42 @@ changes as (
         and o.back_in_old_lane = 0
         and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
     group by o.drive_id, o.ego_id, o.transition_frame, o.side
+),
+
+resolved as (
+    -- each transition ends at its lane change or at the return to the old lane, whichever comes first
+    -- (neither: it stays pending until the next transition)
+    select
+        t.drive_id,
+        t.ego_id,
+        t.transition_frame,
+        least(coalesce(c.frame, r.return_frame), coalesce(r.return_frame, c.frame)) as resolved_frame
+    from transitions as t
+    left join changes as c
+        on t.drive_id = c.drive_id and t.ego_id = c.ego_id and t.transition_frame = c.transition_frame
+    left join returns as r
+        on t.drive_id = r.drive_id and t.ego_id = r.ego_id and t.transition_frame = r.transition_frame
 )
 
 select
-    e.drive_id,
-    e.ego_id,
-    e.frame,
+    p.drive_id,
+    p.ego_id,
+    p.frame,
     e.t_s,
-    e.lane_id,
+    case
+        when p.transition_frame is not null and (v.resolved_frame is null or p.frame < v.resolved_frame)
+            then p.from_lane_id
+        else p.lane_id
+    end as lane_id,
+    p.lane_id as best_lane_id,
     c.side as lane_change_side,
     count(c.frame) over (
-        partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+        partition by p.drive_id, p.ego_id order by p.frame rows between unbounded preceding and current row
     ) as lane_run
-from ego_rows as e
+from pending as p
+inner join ego_rows as e
+    on p.drive_id = e.drive_id and p.ego_id = e.ego_id and p.frame = e.frame
+left join resolved as v
+    on p.drive_id = v.drive_id and p.ego_id = v.ego_id and p.transition_frame = v.transition_frame
 left join changes as c
-    on e.drive_id = c.drive_id and e.ego_id = c.ego_id and e.frame = c.frame
+    on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.frame
