@@ -133,11 +133,14 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
         for k in range(len(s.phases)):
             want = progress.filter(pl.col("phases_reached") == k).select("drive_id", "ego_id", "actor_id", "at_frame")
             con.register("_want", want)
-            rows = con.sql(f"select p.* from phase_{k + 1} as p join _want as w on p.drive_id = w.drive_id and "
-                           "p.ego_id = w.ego_id and p.actor_id = w.actor_id and p.frame = w.at_frame").pl()
+            # the frame right after phase k stopped holding, else (the drive or the pair ends there) its last frame
+            rows = con.sql(f"select p.*, w.at_frame as wanted_frame from phase_{k + 1} as p join _want as w "
+                           "on p.drive_id = w.drive_id and p.ego_id = w.ego_id and p.actor_id = w.actor_id "
+                           "and p.frame in (w.at_frame, w.at_frame - 1) order by p.frame desc").pl()
             con.unregister("_want")
-            rows = rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
-            needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("frame").alias("at_frame"), "t_s",
+            rows = rows.unique(["ego_id", "actor_id"], keep="first", maintain_order=True)
+            needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("wanted_frame").alias("at_frame"),
+                                      pl.col("frame").alias("shown_frame"), "t_s",
                                       _failed(k, s, rows.schema).alias("failed")))
     finally:
         con.close()
@@ -163,7 +166,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
         "matched",
         pl.when(open_).then(pl.col("phases_reached").replace_strict(
             list(range(n)), names, default=None)).alias("failed_phase"),
-        pl.when(open_).then(pl.col("at_frame")).alias("at_frame"),
+        pl.when(open_).then(pl.coalesce("shown_frame", "at_frame")).alias("at_frame"),
         pl.when(open_).then(pl.col("t_s")).alias("at_s"),
         pl.when(open_).then(pl.col("failed").fill_null(pl.lit([], pl.List(pl.String))))
         .otherwise(pl.lit([], pl.List(pl.String))).alias("failed"),

@@ -131,14 +131,14 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     session (tests/test_spark.py)."""
     from pyspark.sql import types as T
 
-    from logiq_sql.engines import INPUT_TABLES, _spark_type, spark_text
+    from logiq_sql.engines import INPUT_TABLES, spark_type, spark_text
     from logiq_sql.plan import parse_ego, run_values, scenario_steps
     from logiq_sql.scenario import list_scenarios
     from logiq_sql.sql import bind
 
     tables = {t.name: t.polars_schema for t in INPUT_TABLES} | _side_tables()
     for name, columns in tables.items():
-        struct = T.StructType([T.StructField(c, _spark_type(d), True) for c, d in columns.items()])
+        struct = T.StructType([T.StructField(c, spark_type(d), True) for c, d in columns.items()])
         spark.createDataFrame([], struct).createOrReplaceTempView(name)
     runs: list[tuple[str, str, dict[str, object]]] = []
     for s in list_scenarios():

@@ -71,7 +71,7 @@ def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:
     con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
 
 
-def _literal(value: object) -> str:
+def sql_literal(value: object) -> str:
     if isinstance(value, str):
         return "'" + value.replace("'", "''") + "'"
     if value is None:
@@ -79,7 +79,7 @@ def _literal(value: object) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
-def _used(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
+def used_values(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
     used: dict[str, object] = {}
     for _, rel in steps:
         used.update(bind(rel, values))
@@ -89,7 +89,7 @@ def _used(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, 
 def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
     """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
     the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
-    lines = [f"set variable {name} = {_literal(v)};" for name, v in _used(steps, values).items()]
+    lines = [f"set variable {name} = {sql_literal(v)};" for name, v in used_values(steps, values).items()]
     ctes = []
     for name, rel in steps[:-1]:
         body = "\n".join("    " + line if line else "" for line in query_text(rel).rstrip().splitlines())

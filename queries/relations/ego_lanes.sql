@@ -11,7 +11,8 @@
 --      than lane_calculation_tolerance_length away from the old lane and from the lanes that continue it
 --      (its successors and predecessors): the keep_lane tolerance. The best lane may meanwhile have moved on
 --      to the next segment, so a lane change across a segment boundary still counts;
---   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change.
+--   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change, and
+--      that return is not a transition of its own (so a flicker across the line never counts as a change back).
 -- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
 --
 --   best_lane_id      the lane the ego's centre is in at that frame (actor_lanes)
@@ -75,6 +76,7 @@ transitions as (
         d.map_id,
         r.run_start_frame as transition_frame,
         r.previous_lane_id as from_lane_id,
+        r.lane_id as to_lane_id,
         n.side
     from runs_with_previous as r
     inner join drive_inputs as d
@@ -152,19 +154,68 @@ changes as (
     group by o.drive_id, o.ego_id, o.transition_frame, o.side
 ),
 
+classed as (
+    -- a transition back into the lane line the previous transition came from, before that one was counted as a
+    -- change, is the ego returning (a flicker across the line), not a new transition. In a chain of such returns
+    -- they alternate: the first is a transition, the second its return, the third a transition again, ...
+    select
+        *,
+        row_number() over (partition by drive_id, ego_id, chain order by transition_frame) % 2 = 0 as is_return
+    from (
+        select
+            *,
+            sum(case when back then 0 else 1 end) over (
+                partition by drive_id, ego_id order by transition_frame
+                rows between unbounded preceding and current row
+            ) as chain
+        from (
+            select
+                t.drive_id,
+                t.ego_id,
+                t.transition_frame,
+                coalesce(c.frame is null and l.line_lane_id is not null, false) as back
+            from (
+                select
+                    *,
+                    lag(transition_frame) over (partition by drive_id, ego_id order by transition_frame)
+                        as previous_frame,
+                    lag(from_lane_id) over (partition by drive_id, ego_id order by transition_frame)
+                        as previous_from_lane_id
+                from transitions
+            ) as t
+            left join lane_line as l
+                on t.map_id = l.map_id and t.previous_from_lane_id = l.lane_id and t.to_lane_id = l.line_lane_id
+            left join changes as c
+                on t.drive_id = c.drive_id and t.ego_id = c.ego_id and t.previous_frame = c.transition_frame
+        ) as flagged
+    ) as chained
+),
+
+counted as (
+    -- the lane changes: the changes of the transitions that are not returns
+    select c.*
+    from changes as c
+    inner join classed as k
+        on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.transition_frame = k.transition_frame
+    where not k.is_return
+),
+
 resolved as (
     -- each transition ends at its lane change or at the return to the old lane, whichever comes first
-    -- (neither: it stays pending until the next transition)
+    -- (neither: it stays pending until the next transition); a return ends at once
     select
-        t.drive_id,
-        t.ego_id,
-        t.transition_frame,
-        least(coalesce(c.frame, r.return_frame), coalesce(r.return_frame, c.frame)) as resolved_frame
-    from transitions as t
-    left join changes as c
-        on t.drive_id = c.drive_id and t.ego_id = c.ego_id and t.transition_frame = c.transition_frame
+        k.drive_id,
+        k.ego_id,
+        k.transition_frame,
+        case
+            when k.is_return then k.transition_frame
+            else least(coalesce(c.frame, r.return_frame), coalesce(r.return_frame, c.frame))
+        end as resolved_frame
+    from classed as k
+    left join counted as c
+        on k.drive_id = c.drive_id and k.ego_id = c.ego_id and k.transition_frame = c.transition_frame
     left join returns as r
-        on t.drive_id = r.drive_id and t.ego_id = r.ego_id and t.transition_frame = r.transition_frame
+        on k.drive_id = r.drive_id and k.ego_id = r.ego_id and k.transition_frame = r.transition_frame
 )
 
 select
@@ -187,5 +238,5 @@ inner join ego_rows as e
     on p.drive_id = e.drive_id and p.ego_id = e.ego_id and p.frame = e.frame
 left join resolved as v
     on p.drive_id = v.drive_id and p.ego_id = v.ego_id and p.transition_frame = v.transition_frame
-left join changes as c
+left join counted as c
     on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.frame
