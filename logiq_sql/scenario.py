@@ -289,15 +289,14 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         target = kpi_queries if key == "kpi_queries" else sample_queries
         target += [q for q in own if q not in target]
     for k in raw.get("kpis", []):
-        kpi = _kpi(k, f"{path} [[kpis]] {k.get('name') if isinstance(k, dict) else k!r}")
+        kpi = _kpi(k, f"{path} [[kpis]] {_entry_name(k)}")
         kpis[kpi.name] = kpi
     for c in raw.get("coverage", []):
-        where = f"{path} [[coverage]] {c.get('name') if isinstance(c, dict) else c!r}"
+        where = f"{path} [[coverage]] {_entry_name(c)}"
         _check_keys(c, _COVERAGE_KEYS, where)
         coverage[_required(c, "name", where)] = _coverage_item(c, where)
 
-    phases = tuple(_phase(p, params, path, f"{path} [[phases]] {p.get('name') if isinstance(p, dict) else p!r}")
-                   for p in raw.get("phases", []))
+    phases = tuple(_phase(p, params, path, f"{path} [[phases]] {_entry_name(p)}") for p in raw.get("phases", []))
     abstract = bool(raw.get("abstract", False))
     frames = raw.get("frames")
     if frames is not None:
@@ -320,6 +319,11 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         kpi_queries=tuple(kpi_queries), sample_queries=tuple(sample_queries), kpis=tuple(kpis.values()),
         coverage=tuple(coverage.values()),
     )
+
+
+def _entry_name(entry: object) -> str:
+    """How an entry of an array of tables is named in messages: its name, else what it is."""
+    return str(entry.get("name")) if isinstance(entry, dict) else repr(entry)
 
 
 def _kpi(k: dict, where: str) -> Kpi:
