@@ -476,7 +476,7 @@ def test_an_unknown_key_in_a_parameter_of_a_scenario_file(tmp_path):
     with pytest.raises(ScenarioError) as e:
         load_scenario("a", tmp_path)
     assert str(e.value) == (f"{tmp_path / 'a.toml'} [params.gap]: unknown key 'defualt'. Did you mean 'default'?\n\n"
-                            "Hint: a parameter has default, description, type.")
+                            "Hint: the keys here are default, description, type (docs/scenarios.md).")
 
 
 def test_a_phase_limit_naming_an_unknown_parameter(tmp_path):

@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is in the ego's lane or a lane beside
 --        it: the phase contract (docs/scenarios.md)
 -- reads: relations, ego_lanes
--- params: $kinds_csv
+-- params: $kinds_csv, $max_gap_s
 --
 -- Conditions (holds = all of them):
 --   actor_kind_ok          the actor is of one of the kinds
@@ -11,20 +11,40 @@
 --   ego_changed_lane_away  the ego's current lane run began with a lane change (ego_lanes.lane_change_side) to
 --                          the side away from the actor: "The Ego changes lanes and continues driving in the lane
 --                          adjacent to the vehicle_actor"
+--   beside_since_change    the actor was beside the ego on this side when that lane change happened (at a frame
+--                          at most max_gap after it, so one missed detection does not lose it): an actor that
+--                          moves out of the ego's new lane later is cutting out itself, not the ego
 -- "The vehicle_actor continues driving in the same lane": had it changed lanes too, it would no longer be beside
 -- the ego on that side. segment = the ego's lane run: a second lane change of the ego ends the phase. Chained
 -- after ego_on_same_lane, the phase begins on the frame of the lane change (docs/semantics.md).
 with
 
 run_changes as (
-    -- the side of the lane change that began each lane run (NULL for the first run)
+    -- the side of the lane change that began each lane run (NULL for the first run), and when
     select
         drive_id,
         ego_id,
         lane_run,
-        max(lane_change_side) as change_side
+        max(lane_change_side) as change_side,
+        min(t_s) as change_s
     from ego_lanes
     group by drive_id, ego_id, lane_run
+),
+
+first_beside as (
+    -- per lane run of the ego, actor and side: the first time the actor is beside the ego on that side
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        el.lane_run,
+        r.adjacent_side,
+        min(r.t_s) as first_s
+    from relations as r
+    inner join ego_lanes as el
+        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    where r.adjacent_side is not null
+    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run, r.adjacent_side
 ),
 
 conditions as (
@@ -38,9 +58,11 @@ conditions as (
         instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
         r.adjacent_side is not null as actor_beside,
         coalesce(c.change_side <> r.adjacent_side, false) as ego_changed_lane_away,
+        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false) as beside_since_change,
         r.actor_kind,
         r.adjacent_side,
         c.change_side,
+        f.first_s - c.change_s as beside_after_change_s,
         el.lane_id as ego_lane_id,
         r.actor_lane_id
     from relations as r
@@ -48,10 +70,13 @@ conditions as (
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
     inner join run_changes as c
         on el.drive_id = c.drive_id and el.ego_id = c.ego_id and el.lane_run = c.lane_run
+    left join first_beside as f
+        on r.drive_id = f.drive_id and r.ego_id = f.ego_id and r.actor_id = f.actor_id and el.lane_run = f.lane_run
+        and r.adjacent_side = f.adjacent_side
     where r.adjacent_side is not null or r.same_lane
 )
 
 select
     *,
-    actor_kind_ok and actor_beside and ego_changed_lane_away as holds
+    actor_kind_ok and actor_beside and ego_changed_lane_away and beside_since_change as holds
 from conditions

@@ -7,20 +7,22 @@
 -- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
 --   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
 --      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition;
---   2. the change happens at the first frame after the transition at which the ego is in a lane and more
---      than lane_calculation_tolerance_length away from the old lane and from the lanes that continue it
---      (its successors and predecessors): the keep_lane tolerance. The best lane may meanwhile have moved on
---      to the next segment, so a lane change across a segment boundary still counts;
+--   2. the change is confirmed if, after the transition, the ego is in a lane and more than
+--      lane_calculation_tolerance_length away from the old lane and from the lanes that continue it (its
+--      successors and predecessors): the keep_lane tolerance. It is dated at the transition, the frame at
+--      which the ego's centre crossed into the new lane. The best lane may meanwhile have moved on to the
+--      next segment, so a lane change across a segment boundary still counts;
 --   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change, and
 --      that return is not a transition of its own (so a flicker across the line never counts as a change back).
 -- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
 --
 --   best_lane_id      the lane the ego's centre is in at that frame (actor_lanes)
---   lane_id           the ego's lane: its best lane, except while a transition is pending (after 1., before 2.
---                     or 3.), when it is still the lane it came from. Every relation to the ego's lane
---                     (relations.same_lane, adjacent_side) uses this column, so "same lane", "beside" and
---                     the lane change agree frame by frame: a leader stays in the ego's lane up to the frame
---                     before the change, and is beside it from the frame of the change on
+--   lane_id           the ego's lane: its best lane, except after a transition that is never confirmed (the
+--                     centre crossed the line and came back within the tolerance: jitter, a drift), when it is
+--                     still the lane it came from. Every relation to the ego's lane (relations.same_lane,
+--                     adjacent_side) uses this column, so "same lane", "beside" and the lane change agree frame
+--                     by frame: a leader is in the ego's lane up to the frame before the change, and beside it
+--                     from the frame of the change on
 --   lane_change_side  the side the ego moved to, on the frame of the change (the first frame of a lane run)
 --   lane_run          how many lane changes the ego made up to this frame
 with
@@ -201,15 +203,16 @@ counted as (
 ),
 
 resolved as (
-    -- each transition ends at its lane change or at the return to the old lane, whichever comes first
-    -- (neither: it stays pending until the next transition); a return ends at once
+    -- a transition confirmed by a lane change takes effect at once (the change is dated at the transition: the
+    -- frame the ego's centre crossed into the new lane); so does a return; an unconfirmed transition holds the
+    -- old lane until the ego returns to it (or for good, until the next transition)
     select
         k.drive_id,
         k.ego_id,
         k.transition_frame,
         case
-            when k.is_return then k.transition_frame
-            else least(coalesce(c.frame, r.return_frame), coalesce(r.return_frame, c.frame))
+            when k.is_return or c.frame is not null then k.transition_frame
+            else r.return_frame
         end as resolved_frame
     from classed as k
     left join counted as c
@@ -239,4 +242,4 @@ inner join ego_rows as e
 left join resolved as v
     on p.drive_id = v.drive_id and p.ego_id = v.ego_id and p.transition_frame = v.transition_frame
 left join counted as c
-    on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.frame
+    on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.transition_frame
