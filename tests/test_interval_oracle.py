@@ -32,6 +32,8 @@ def oracle_islands(frames_ok: list[bool], min_s: float | None, max_s: float | No
             runs.append([i, i])
     out = []
     for start, end in runs:
+        if (end - start) * DT < max_gap_s - 1e-6:  # shorter than max_gap: jitter, not an episode
+            continue
         if max_s is not None:  # consecutive pieces spanning at most max_s
             span = math.floor(max_s / DT + 1e-9) + 1
             for a in range(start, end + 1, span):

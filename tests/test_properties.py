@@ -58,7 +58,7 @@ PAIR_FRAMES = st.fixed_dictionaries({"a": st.lists(FRAME, max_size=40), "b": st.
 
 @PROFILE
 @given(pairs=PAIR_FRAMES, max_gap_s=st.sampled_from([0.0, 0.1, 0.3]))
-def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment(pairs, max_gap_s):
+def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment_at_least_max_gap_long(pairs, max_gap_s):
     rows = [(actor, f, flags, seg) for actor, frames in pairs.items() for f, present in enumerate(frames)
             if present is not None for flags, seg in present]
     phases = {f"phase_{i + 1}": pl.DataFrame(
@@ -72,6 +72,7 @@ def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment(pairs, max_ga
         for i in range(4) for actor in ("a", "b") for seg in (0, 1)
         # a frame holds if any of its rows of that segment does
         for a, b in bridged_runs([f for x, f, p, s in rows if x == actor and s == seg and p[i]], gap)
+        if (b - a) * DT >= max_gap_s - 1e-6  # a run shorter than max_gap is jitter, dropped
     )
     assert got == expected
 
