@@ -1,7 +1,7 @@
 """What a match run does, before any data is read: the scenarios with their overrides, the SUT choice, the values
 every step binds, and the steps in order (also rendered as one readable statement).
 
-    egos -> lane_neighbours, lane_line, actor_lanes, ego_lanes -> relations     shared by the scenarios of a group
+    egos -> lane_line, lane_neighbours, actor_lanes, ego_lanes -> relations     shared by the scenarios of a group
     [junction steps, encroachments]                                              scenarios with junctions = true
     [scenario_frames] -> phase_1 .. phase_n -> phase_runs -> chain -> scenario_match    per scenario
 """
@@ -24,8 +24,8 @@ DEFAULT_MIN_CLOSING_SPEED_MPS = 0.1  # logiq_base_vehicle_scenario's min_closing
 EGO_KINDS = ("vehicle", "truck", "bus", "motorcycle", "emergency_vehicle")
 EGO_KIND_ALIASES = {"car": "vehicle"}
 RELATION_STEPS = (
-    ("lane_neighbours", "relations/lane_neighbours.sql"),
     ("lane_line", "relations/lane_line.sql"),
+    ("lane_neighbours", "relations/lane_neighbours.sql"),
     ("actor_lanes", "relations/actor_lanes.sql"),
     ("ego_lanes", "relations/ego_lanes.sql"),
     ("relations", "relations/relations.sql"),

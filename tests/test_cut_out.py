@@ -58,7 +58,9 @@ def test_phase_minimum_durations(tmp_path):
     # the actor appears at t = 4.7 s: the ego follows it for 0.3 s (4.7 .. 5.0) before the lane change
     short_follow = make_db(tmp_path / "a", drive(t, ramp(t, 4.5, Y1, Y2), actor_start=47))
     assert intervals(match(short_follow, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
-    relaxed = match(short_follow, scenarios=[CUT_OUT], overrides={"min_ego_on_same_lane_phase_duration": "0.3s"})
+    # (a run shorter than max_gap is dropped as jitter: 0.3 s needs max_gap <= 0.3 s)
+    relaxed = match(short_follow, scenarios=[CUT_OUT],
+                    overrides={"min_ego_on_same_lane_phase_duration": "0.3s", "max_gap": "0.3s"})
     assert intervals(relaxed.matches, CUT_OUT) == [("ego", "npc", 4.7, 8.1)]
     # the ego goes back from t = 5.5 s: its centre is back in the actor's lane from 6.1 s (a lane change back,
     # confirmed at 6.3 s), so it drove beside the actor for 0.9 s (5.1 .. 6.0), shorter than

@@ -12,8 +12,9 @@
 --                          the side away from the actor: "The Ego changes lanes and continues driving in the lane
 --                          adjacent to the vehicle_actor"
 --   beside_since_change    the actor was beside the ego on this side when that lane change happened (at a frame
---                          at most max_gap after it, so one missed detection does not lose it): an actor that
---                          moves out of the ego's new lane later is cutting out itself, not the ego
+--                          at most max_gap after it, so one missed detection does not lose it) and has not been in
+--                          the ego's lane since: an actor that moves into the ego's new lane and out again is
+--                          cutting in and out itself, not the ego cutting out
 -- "The vehicle_actor continues driving in the same lane": had it changed lanes too, it would no longer be beside
 -- the ego on that side. segment = the ego's lane run: a second lane change of the ego ends the phase. Chained
 -- after ego_on_same_lane, the phase begins on the frame of the lane change (docs/semantics.md).
@@ -47,6 +48,21 @@ first_beside as (
     group by r.drive_id, r.ego_id, r.actor_id, el.lane_run, r.adjacent_side
 ),
 
+first_in_lane as (
+    -- per lane run of the ego and actor: the first time the actor is in the ego's (new) lane
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        el.lane_run,
+        min(r.t_s) as first_s
+    from relations as r
+    inner join ego_lanes as el
+        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    where r.same_lane
+    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run
+),
+
 conditions as (
     select
         r.drive_id,
@@ -58,7 +74,8 @@ conditions as (
         instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
         r.adjacent_side is not null as actor_beside,
         coalesce(c.change_side <> r.adjacent_side, false) as ego_changed_lane_away,
-        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false) as beside_since_change,
+        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false)
+            and (i.first_s is null or i.first_s > r.t_s) as beside_since_change,
         r.actor_kind,
         r.adjacent_side,
         c.change_side,
@@ -73,6 +90,8 @@ conditions as (
     left join first_beside as f
         on r.drive_id = f.drive_id and r.ego_id = f.ego_id and r.actor_id = f.actor_id and el.lane_run = f.lane_run
         and r.adjacent_side = f.adjacent_side
+    left join first_in_lane as i
+        on r.drive_id = i.drive_id and r.ego_id = i.ego_id and r.actor_id = i.actor_id and el.lane_run = i.lane_run
     where r.adjacent_side is not null or r.same_lane
 )
 
