@@ -153,7 +153,7 @@ def _chain(islands: list[tuple[int, int, int]], phase_count: int, max_gap_frames
     con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": range(200),
                                          "t_s": [f / 10 for f in range(200)]}))
     con.register("drive_inputs", pl.DataFrame({"drive_id": ["d"], "dt_s": [0.1]}))
-    values = {"phase_count": phase_count, **{f"phase_{i}_min_duration_s": 0.0 for i in range(1, 5)},
+    values = {"phase_count": phase_count, "max_gap_s": 0.0, **{f"phase_{i}_min_duration_s": 0.0 for i in range(1, 5)},
               **{f"phase_{i}_max_duration_s": None for i in range(1, 5)}}
     materialise(con, "chain", "match/chain.sql", values)
     materialise(con, "scenario_match", "match/sequential.sql", values)

@@ -8,9 +8,8 @@
 -- A run is a maximal stretch of frames of one (ego, actor) pair and one segment in which the phase holds, where
 -- an interruption of at most max_gap (frames missing from the tracks, or frames at which the phase's condition
 -- is false) does not end it: a missed detection, or measurement jitter across a threshold, does not split a
--- phase. The other way round, a run that lasts less than max_gap is jitter too (a distance dipping under its
--- limit for a frame or two), not an episode: it is dropped. With max_gap = 0 a run is exactly a stretch of
--- consecutive frames, and every run is kept.
+-- phase. With max_gap = 0 a run is exactly a stretch of consecutive frames. (The other half of the rule, a match
+-- shorter than max_gap is jitter, is in match/sequential.sql: a phase may hold briefly within a longer match.)
 --   max_gap_frames   floor(max_gap / dt_s): the longest interruption bridged, in frames
 --   bridged_frames   frames inside the run at which the phase did not hold (or that are missing): what was
 --                    bridged (`logiq-sql explain` lists them)
@@ -64,4 +63,3 @@ select
     max(frame) - min(frame) + 1 - count(*) as bridged_frames
 from numbered
 group by phase_index, drive_id, ego_id, actor_id, segment, run
-having max(t_s) - min(t_s) >= $max_gap_s - 1e-6

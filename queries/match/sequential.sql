@@ -3,7 +3,8 @@
 --        (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
 -- reads: chain (match/chain.sql over phase_runs), tracks, drive_inputs
 -- params: $phase_count, $phase_1_min_duration_s .. $phase_4_min_duration_s, $phase_1_max_duration_s ..
---         $phase_4_max_duration_s (the durations the scenario's phases name; no minimum: 0, no maximum: NULL)
+--         $phase_4_max_duration_s (the durations the scenario's phases name; no minimum: 0, no maximum: NULL),
+--         $max_gap_s
 --
 -- Every scenario, one phase or four, is matched by this query (docs/semantics.md, "Phases and matches"):
 --   1. A match is a complete chain (chain.sql): phase k lasts from its transition frame to the frame before
@@ -16,6 +17,9 @@
 --      consecutive pieces of at most the maximum from its start (floor(max / dt_s) + 1 frames), each a match:
 --      no part of the episode is lost.
 --      Minimum: then every phase must last at least its minimum.
+--   3. Jitter: a chain that lasts less than max_gap altogether (a distance dipping under its limit for a frame or
+--      two on noisy positions) is not an episode and gives no match; the other half of bridging gaps of at most
+--      max_gap (match/phase_runs.sql). A phase may still hold briefly inside a longer chain.
 -- Timestamps are compared with a 1 us tolerance, so a 3 s limit keeps 3 s of 0.1 s samples whatever the
 -- floating-point rounding of t_s.
 with
@@ -246,5 +250,12 @@ select
     p4_end_frame,
     p4_start_s,
     p4_end_s
-from matched
+from (
+    select
+        *,
+        max(end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame)
+            - min(start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame) as chain_s
+    from matched
+) as chains
 where durations_ok = 1
+    and chain_s >= $max_gap_s - 1e-6
