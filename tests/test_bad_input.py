@@ -423,8 +423,9 @@ def test_a_truncated_or_corrupt_file_is_rejected_and_the_good_one_still_matches(
     assert bad["status"] == "rejected"
     assert bad["reject_reason"].startswith(f"{folder / name}: {says}")
     assert bad["reject_reason"].endswith(fix)
-    # the NGSIM scene has followers; the nuScenes scene has none, but is read in full
-    assert drives[str(folder / good.name)]["status"] == ("matched" if fmt == "commonroad" else "no_match")
+    # the NGSIM scene has followers; the nuScenes scene is read in full (every:10 numbers every kind that can be
+    # under test since trucks and buses are SUTs, so it may pick an ego that has a follower)
+    assert drives[str(folder / good.name)]["status"] in (("matched",) if fmt == "commonroad" else ("matched", "no_match"))
     assert drives[str(folder / good.name)]["rows_rejected"] == 0
 
 
