@@ -54,7 +54,8 @@ def test_quickstart(tmp_path, monkeypatch):
 def test_exploration(tmp_path, monkeypatch):
     nb = execute("exploration.ipynb", tmp_path, monkeypatch)
     images = outputs(nb, "image/png")
-    # timeline, two bird's-eye views, four coverage grids, KPI grid
-    assert len(images) == 8
+    # timeline, two bird's-eye views, a coverage grid per scenario (found in scenarios/), KPI grid
+    from logiq_sql.scenario import list_scenarios
+    assert len(images) == 3 + len(list_scenarios()) + 1
     tables = "".join(outputs(nb, "text/html"))
     assert "pet_between_sut_and_npc_s" in tables and "empty_buckets" in tables
