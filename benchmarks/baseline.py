@@ -18,7 +18,7 @@ import duckdb
 import numpy as np
 import pandas as pd
 
-from logiq_sql.match import OBJECT_RELATION_RANGE_M, resolve_scenarios
+from logiq_sql.plan import OBJECT_RELATION_RANGE_M, resolve_scenarios
 
 VEHICLE_KINDS = {"vehicle", "truck", "bus", "trailer", "motorcycle", "emergency_vehicle"}
 
@@ -70,9 +70,14 @@ def _islands(frames: np.ndarray) -> np.ndarray:
 def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: float) -> pd.DataFrame:
     kinds = {k for k in str(p["kinds_csv"]).split(",") if k}
     lanes = _actor_lanes(t["track_lanes"], float(p["lane_calculation_tolerance_length_m"]))
+    # the lane line (queries/relations/lane_line.sql): successors and theirs, predecessors and theirs
     line = {(r.map_id, r.lane_id, r.lane_id) for r in t["lanes"].itertuples()}
+    nxt: dict[tuple[str, str], set[str]] = {}
     for r in t["lane_successors"].itertuples():
-        line |= {(r.map_id, r.lane_id, r.successor_id), (r.map_id, r.successor_id, r.lane_id)}
+        nxt.setdefault((r.map_id, r.lane_id), set()).add(r.successor_id)
+    for (m, a), bs in nxt.items():
+        for b in bs | {c for b in bs for c in nxt.get((m, b), ())}:
+            line |= {(m, a, b), (m, b, a)}
     maps = dict(zip(t["drive_inputs"]["drive_id"], t["drive_inputs"]["map_id"], strict=True))
     lanes_by_drive = dict(tuple(lanes.groupby("drive_id")))
     ego_lanes = dict(tuple(t["ego_lanes"].groupby(["drive_id", "ego_id"])))

@@ -25,7 +25,8 @@ from sqlglot import exp
 from logiq_sql import db, schema
 from logiq_sql.errors import InputError
 from logiq_sql.ingestion import BATCH_ROWS, write_drives
-from logiq_sql.match import DEFAULT_RELATION_RANGE, MatchResult, match, phase_steps, resolve_scenarios
+from logiq_sql.match import MatchResult, match
+from logiq_sql.plan import DEFAULT_RELATION_RANGE, phase_steps, resolve_scenarios
 from logiq_sql.readers.parquet import check_table, check_track_columns, drive_metadata, read_drives
 from logiq_sql.scenario import Scenario
 from logiq_sql.sql import query_text

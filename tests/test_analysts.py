@@ -69,9 +69,11 @@ def test_fast_cut_outs_are_the_ones_measured(matched_db):
     (sql,) = [s for h, s in example_queries() if h.startswith("Fast cut-outs")]
     with duckdb.connect(str(matched_db), read_only=True) as con:
         rows = con.sql(sql).pl()
-    # two cut-outs of these scenes qualify: ego 40 in US-101 scene 26 and ego 44 in scene 24
-    assert sorted(rows.select("drive_id", "ego_id").rows()) == [
-        ("USA_US101-24_1_T-1@2018b", "44"), ("USA_US101-26_1_T-1@2018b", "40")]
+    # cut-outs of these scenes that qualify: ego 40 in US-101 scene 26, ego 44 in scene 24 and, since gradual lane
+    # changes chain (the lane change dated where the ego crosses into the new lane), ego 675 in scene 22
+    egos = sorted(rows.select("drive_id", "ego_id").rows())
+    assert ("USA_US101-24_1_T-1@2018b", "44") in egos and ("USA_US101-26_1_T-1@2018b", "40") in egos
+    assert ("USA_US101-22_1_T-1@2018b", "675") in egos and len(egos) == 3
     assert (rows["ego_max_speed_kph"] > 60).all() and (rows["min_ttc_s"] < 3).all()
 
 
@@ -119,8 +121,9 @@ def test_report_renders_in_headless_chromium(matched_db, tmp_path):
         page.on("request", lambda req: requests.append(req.url))
         page.goto(html.as_uri())
         page.wait_for_load_state("load")
-        # coverage grids for the 4 scenarios and KPI grids for the 4 that matched
-        assert page.locator(".chart svg").count() == 8
+        # a coverage grid and a KPI grid for every scenario found in scenarios/ (each matched here)
+        from logiq_sql.scenario import list_scenarios
+        assert page.locator(".chart svg").count() == 2 * len(list_scenarios())
         assert page.locator(".chart svg").first.bounding_box()["width"] > 300
         rows = page.locator("#matches tbody tr:visible")
         assert rows.count() == total > left_turns > 0

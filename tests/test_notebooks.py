@@ -60,8 +60,9 @@ def test_quickstart(tmp_path, monkeypatch):
 def test_exploration(tmp_path, monkeypatch):
     nb = execute("exploration.ipynb", tmp_path, monkeypatch)
     images = outputs(nb, "image/png")
-    # timeline, a bird's-eye view, four coverage grids, KPI grid
-    assert len(images) == 7
+    # timeline, a bird's-eye view, a coverage grid per scenario (found in scenarios/), KPI grid
+    from logiq_sql.scenario import list_scenarios
+    assert len(images) == 2 + len(list_scenarios()) + 1
     # the motorway cut-out, then one match of each of the four scenarios, each with its frames
     assert len(replays(nb)) == 5 and all(r.count("data:image/png;base64") >= 10 for r in replays(nb))
     printed = "".join(outputs(nb, "stream"))

@@ -51,20 +51,25 @@ def test_us101_car_675_follows_car_671(default_run):
 def test_us101_car_675_cuts_out_from_behind_car_671(real_db, default_run):
     m = default_run.matches.filter((pl.col("drive_id") == US101) & (pl.col("ego_id") == "675")
                                    & (pl.col("scenario") == "sut_cut_out"))
-    assert m.select("actor_id", "start_s", "end_s").rows() == [("671", 9.3, 14.8)]
+    assert m.select("actor_id", "start_s", "end_s").rows() == [("671", 6.4, 12.5)]
     phases = default_run.match_phases.filter(pl.col("match_id") == m["match_id"][0]).sort("phase_index")
     assert phases.select("phase", "start_s", "end_s").rows() == [
-        ("ego_on_same_lane", 9.3, 12.3), ("ego_side_of_npc", 12.4, 14.8)]
-    # the lane change is where 675's centre first gets more than the 1 m tolerance away from 671's lane
-    # polygon: checked here with shapely on the raw rows, not with the SQL
+        ("ego_on_same_lane", 6.4, 9.4), ("ego_side_of_npc", 9.5, 12.5)]
+    # the lane change is dated where 675's centre leaves 671's lane polygon (9.5 s) and is confirmed where it first
+    # gets more than the 1 m tolerance away from it (12.4 s): checked here with shapely on the raw rows, not with
+    # the SQL
     with duckdb.connect(str(real_db), read_only=True) as con:
         rows = con.sql("""select t.actor_id, t.t_s, t.x_m, t.y_m, l.polygon_wkt
                           from tracks t, lanes l, drive_inputs d
                           where t.drive_id = $d and d.drive_id = t.drive_id and l.map_id = d.map_id
-                            and t.actor_id in ('671', '675') and t.t_s in (12.3, 12.4)""", params={"d": US101}).pl()
+                            and t.actor_id in ('671', '675') and t.t_s in (9.4, 9.5, 12.3, 12.4)""",
+                       params={"d": US101}).pl()
+    times_s = (9.4, 9.5, 12.3, 12.4)
     lane_671 = {t: next(w for a, tt, x, y, w in rows.rows() if a == "671" and tt == t
-                        and shapely.from_wkt(w).contains(shapely.Point(x, y))) for t in (12.3, 12.4)}
+                        and shapely.from_wkt(w).contains(shapely.Point(x, y))) for t in times_s}
     ego = {t: shapely.Point(x, y) for a, t, x, y, _ in rows.unique(["actor_id", "t_s"]).rows() if a == "675"}
+    assert shapely.from_wkt(lane_671[9.4]).contains(ego[9.4])
+    assert not shapely.from_wkt(lane_671[9.5]).contains(ego[9.5])
     assert shapely.from_wkt(lane_671[12.3]).distance(ego[12.3]) <= 1.0
     assert shapely.from_wkt(lane_671[12.4]).distance(ego[12.4]) > 1.0
     kpi = default_run.kpis.filter(pl.col("match_id") == m["match_id"][0]).row(0, named=True)
