@@ -59,6 +59,10 @@ JUNCTION_STEPS = (
 # file whose header documents their columns
 PERSISTED = {"relations": "queries/relations/relations.sql", "ego_lanes": "queries/relations/ego_lanes.sql",
              "passages": "queries/junctions/passages.sql", "encroachments": "logiq_sql/encroachment.py"}
+# stored by every run, the rest of PERSISTED only with ``keep`` (match --keep): evaluate reads which egos the
+# matcher used from ego_lanes (a row per ego frame), while relations (about twice the track rows), passages and
+# encroachments are recomputed on demand (explain, queries/relations/relations_of.sql)
+STORED_ALWAYS = ("ego_lanes",)
 ENCROACHMENTS_GRAIN = ("one row per (drive_id, ego_id, actor_id) pair of junction passages whose swept paths share "
                        "an area")
 
@@ -183,7 +187,7 @@ def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "a
         return render_for_engine(engine, s, scenario_steps(s), values)
     header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
               f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
-              + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match once first.\n"
+              + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match --keep once first.\n"
                  if s.junctions else "")
               + "create or replace temp table run_drives as "
                 "select drive_id from drive_inputs where status = 'ingested';\n")
@@ -269,7 +273,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
           spark_master: str | None = None, spark_tables: str | Path | None = None,
-          batch_rows: int = MATCH_BATCH_ROWS) -> MatchResult:
+          batch_rows: int = MATCH_BATCH_ROWS, keep: bool = False) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -289,6 +293,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         spark_tables: folder the canonical tables are written to as Parquet for Spark (default: a temporary one).
         batch_rows: match the drives in batches of about this many track rows (a drive is never split); each
             batch is stored in its own transaction, so a killed run keeps the batches it finished.
+        keep: also store the intermediate tables relations, passages and encroachments for analysts (ego_lanes
+            is always stored); without it, any such rows an earlier run kept for these drives are removed.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {})
@@ -331,7 +337,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
                 say(f"  {s.name}: {results[-1][0].height} matches")
             runner.persist(tuple(PERSISTED))
             runner.release_drives()
-            _store(con, run_id, ego, range_m, todo, results)
+            _store(con, run_id, ego, range_m, todo, results, keep)
         con.register("run_drives", run_drives)
         result = _result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date
@@ -402,14 +408,22 @@ def _run_scenario(engine: Engine, s: Scenario, values: dict[str, object]):
 
 
 def _store(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float, run_drives: pl.DataFrame,
-           results) -> None:
+           results, keep: bool = False) -> None:
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
+    made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
+    for table in (t for t in PERSISTED if t in made and (keep or t in STORED_ALWAYS)):
+        # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
+        # keeps the empty table's statistics, so filters on it (`where drive_id = ...`, the delete below in a
+        # later batch) skipped every row (kept relations were stored twice)
+        con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
     con.execute("begin transaction")
     try:
-        stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
-        made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
-        for table in (t for t in PERSISTED if t in made):
-            con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+        for table in (t for t in PERSISTED if t in have and not (keep or t in STORED_ALWAYS)):
+            # not kept this run: rows an earlier run kept for these drives would no longer be the last run's
+            con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
+        for table in (t for t in PERSISTED if t in made and (keep or t in STORED_ALWAYS)):
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
             _describe_persisted(con, stored, table)
