@@ -311,14 +311,17 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         for drive, *_ in accepted:
             db.insert(con, "traffic_light_states", drive.traffic_light_states)
         with stage("kinematics"):
-            con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
-            con.execute("create or replace temp table _staged as " + query_text("staging/tracks.sql"))
+            # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
+            # order, a track being the rows of one track_no; written once, into tracks
+            raw = pl.concat([t for _, t, *_ in accepted])
+            con.register("tracks_raw", raw.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()))
+            con.execute("insert into tracks " + query_text("staging/tracks.sql"))
             con.unregister("tracks_raw")
-            con.execute("insert into tracks select * from _staged")
+            del raw
         for map_id, drive in maps.items():
             on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
             con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
-            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from _staged "
+            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from tracks "
                              "where drive_id in (select drive_id from _on_map)").pl()
             with stage("localisation"):
                 located = locate(staged, drive.lanes)
@@ -329,7 +332,6 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             "rows_read": d.rows_read or d.tracks.height, "rows_rejected": d.rows_rejected + dropped,
             "status": "ingested", "reject_reason": reason, "attribution": d.attribution,
         } for d, _, dropped, reason in accepted], schema=schema.DRIVE_INPUTS.polars_schema))
-        con.execute("drop table _staged")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
