@@ -305,11 +305,10 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         _drop_outputs(con, ids["drive_id"].to_list())
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
-        for drive in maps.values():
-            for table in schema.MAP_TABLE_NAMES:
-                db.insert(con, table, getattr(drive, table))
-        for drive, *_ in accepted:
-            db.insert(con, "traffic_light_states", drive.traffic_light_states)
+        # one insert per table for the whole batch (one per map or drive cost 0.4 s per 100 drives)
+        for table in schema.MAP_TABLE_NAMES:
+            _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
+        _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])
         with stage("kinematics"):
             # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
             # order, a track being the rows of one track_no; written once, into tracks
@@ -337,6 +336,13 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.execute("rollback")
         raise
     return written
+
+
+def _insert_all(con: duckdb.DuckDBPyConnection, table: str, frames: list[pl.DataFrame]) -> None:
+    """Append the rows of every frame to ``table`` in one insert."""
+    frames = [f for f in frames if not f.is_empty()]
+    if frames:
+        db.insert(con, table, pl.concat(frames, how="diagonal_relaxed"))
 
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
