@@ -25,7 +25,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import db, units
+from logiq_sql import db, relations_of, units
 from logiq_sql.batching import batches
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCH_PHASES, MATCHES
 from logiq_sql.encroachment import encroachments
@@ -307,6 +307,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         check_engine(engine, [rel for s in chosen for _, rel in scenario_steps(s)]
                      + ["match/identify.sql", *(rel for s in chosen for rel in s.kpi_queries)])
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
+        relations_of.install(con)  # the relation of any ego on demand, since relations is kept only with keep
         _ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
         # scenarios that share a lane tolerance and the drives still to match share their relations
