@@ -212,6 +212,12 @@ def _one_row_per_frame(rows: pl.DataFrame, dt_s: float) -> tuple[pl.DataFrame, l
     (jitter, a stray extra sample): the one nearest to frame * dt_s is kept. Rows with the same actor and t_s but
     different values contradict each other: all of them are dropped, so that frame is missing for the actor."""
     reasons = []
+    # the usual case, checked at once: no two rows share an (actor, frame) or an (actor, t_s), so there are no
+    # exact copies, no contradictions and no second sample in a frame (the steps below would drop nothing)
+    clash = rows.select(pl.struct("actor_id", "frame").is_duplicated().any().alias("frame"),
+                        pl.struct("actor_id", "t_s").is_duplicated().any().alias("t")).row(0)
+    if not any(clash):
+        return rows, reasons
     unique = rows.unique(maintain_order=True)
     if unique.height < rows.height:
         reasons.append(f"{rows.height - unique.height} exact duplicate row(s) dropped")
