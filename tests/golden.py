@@ -3,6 +3,7 @@ that changes a result fails a test (tests/test_golden.py) and the benchmark can 
 
     python -m tests.golden --write     # regenerate tests/golden/*.parquet from the code as it is now
     python -m tests.golden             # compare the code as it is now with the stored files
+    make golden                        # both goldens in one command: these and tier S's (benchmarks/golden/)
 
 Regenerate only with a deliberate change of meaning (a phase, KPI or localisation rule), in a commit of its own
 that says so; a speed change must leave them equal.
