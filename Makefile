@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO_DB := demo/demo.duckdb
 
-.PHONY: venv demo test bench docs clean
+.PHONY: venv demo test bench golden docs clean
 
 $(BIN)/logiq-sql: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -61,6 +61,11 @@ TIER ?= S
 bench: venv
 	$(BIN)/python -m benchmarks.tiers --tier $(TIER) $(BENCH_ARGS)
 	$(BIN)/python -m benchmarks.components --tier $(TIER)
+
+# after a deliberate change of meaning only (its own commit): the bundled-drive goldens and tier S's
+golden: venv
+	$(BIN)/python -m tests.golden --write
+	$(BIN)/python -m benchmarks.tiers --tier S --no-baseline --write-golden
 
 docs: venv
 	$(BIN)/python -c "from logiq_sql.db import docs_markdown; print(docs_markdown())" > docs/tables.md

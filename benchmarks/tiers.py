@@ -42,7 +42,7 @@ from logiq_sql import schema
 from logiq_sql.db import memory_limit
 from logiq_sql.ingestion import ingest
 from logiq_sql.match import match
-from logiq_sql.timing import recording
+from logiq_sql.timing import cpu_seconds, recording
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
@@ -58,6 +58,40 @@ from read_parquet($path)
 group by drive_id, actor_id
 """
 BASELINE_SCENARIOS = ("follower_vehicle", "cyclist_close_to_moving_sut")
+# each tier's outputs from the code before a speed change (written with --write-golden), compared on every run:
+# a lever that changes a match, phase or KPI shows here at scale, not only on the bundled drives (tests/golden.py)
+GOLDEN = ROOT / "benchmarks" / "golden"
+GOLDEN_TABLES = {
+    "matches": "select * exclude (run_id) from matches order by scenario, drive_id, ego_id, actor_id, start_frame",
+    "match_phases": "select * from match_phases order by match_id, phase_index",
+    "kpis": "select * from kpis order by scenario, match_id",
+}
+
+
+def golden_check(db: Path, tier: str, write: bool) -> dict[str, object]:
+    """Write (``write``) or compare the tier's matches, phases and KPIs with benchmarks/golden/<tier>_*.parquet."""
+    from polars.testing import assert_frame_equal
+
+    with duckdb.connect(str(db), read_only=True) as con:
+        got = {name: con.sql(sql).pl() for name, sql in GOLDEN_TABLES.items()}
+    if write:
+        GOLDEN.mkdir(parents=True, exist_ok=True)
+        for name, frame in got.items():
+            frame.write_parquet(GOLDEN / f"{tier}_{name}.parquet", compression="zstd", compression_level=19)
+        return {"written": True}
+    out: dict[str, object] = {}
+    for name, frame in got.items():
+        path = GOLDEN / f"{tier}_{name}.parquet"
+        if not path.exists():
+            out[name] = "no golden"
+            continue
+        want = pl.read_parquet(path)
+        try:
+            assert_frame_equal(frame.select(want.columns), want, check_exact=False, rel_tol=1e-9, abs_tol=1e-12)
+            out[name] = "same"
+        except (AssertionError, pl.exceptions.ColumnNotFoundError) as exc:
+            out[name] = f"DIFFERENT: {str(exc).splitlines()[0]}"
+    return out
 
 
 def build_base(base: Path) -> list[str]:
@@ -144,11 +178,12 @@ def prepare(rows: int, out: Path) -> tuple[int, list[str]]:
     return replicate(rows, out), sources
 
 
-def floor_s(path: Path) -> float:
-    start = time.perf_counter()
+def floor_s(path: Path) -> tuple[float, float]:
+    """Wall and CPU seconds of the floor query."""
+    start, cpu = time.perf_counter(), cpu_seconds()
     with duckdb.connect() as con:
         con.execute(FLOOR_SQL, {"path": str(path)}).fetchall()
-    return time.perf_counter() - start
+    return time.perf_counter() - start, cpu_seconds() - cpu
 
 
 def run_baseline(db: Path, sql_s: float) -> dict[str, object]:
@@ -174,12 +209,20 @@ def markdown(r: dict) -> str:
     lines = [f"# Tier {r['tier']}: {r['rows']:,} track rows, {r['drives']:,} drives, ego {r['ego']}", "",
              f"Measured {r['measured_at']} on {r['machine']}. Floor (plain DuckDB scan + group-by): "
              f"{r['floor_s']:.2f} s ({r['rows'] / r['floor_s']:,.0f} rows/s).", "",
-             "| stage | wall s | rows/s | x floor | peak RSS GiB |", "|---|---:|---:|---:|---:|"]
+             "| stage | wall s | rows/s | x floor | CPU s | peak RSS GiB |", "|---|---:|---:|---:|---:|---:|"]
     for name, s in r["stages"].items():
         lines.append(f"| {name} | {s['seconds']:.2f} | {s['rows_per_s']:,.0f} | {s['ratio_to_floor']:.1f} | "
-                     f"{s['peak_rss_bytes'] / 2**30:.2f} |")
+                     f"{s['cpu_seconds']:.2f} | {s['peak_rss_bytes'] / 2**30:.2f} |")
     lines += ["", f"**Pipeline**: {r['pipeline_s']:.1f} s = **{r['ratio_to_floor']:.1f}x the floor**; "
-              f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB; {r['matches']:,} matches."]
+              f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB; {r['matches']:,} matches; "
+              f"{r['rows'] / r['pipeline_s']:,.0f} rows/s, {1e6 * r['pipeline_s'] / r['rows']:.2f} µs per row. "
+              f"CPU (all threads): pipeline {r['pipeline_cpu_s']:.1f} s against the floor's {r['floor_cpu_s']:.2f} s "
+              f"= {r['cpu_ratio_to_floor']:.1f}x.", "",
+              f"**Re-matching** (match --force on the ingested file): {r['rematch_s']:.1f} s = "
+              f"{r['rematch_rows_per_s']:,.0f} rows/s, {r['rematch_ratio_to_floor']:.1f}x the floor; "
+              f"CPU {r['rematch_cpu_s']:.1f} s.", "",
+              "**Golden** (benchmarks/golden/, the outputs before the speed work): "
+              + ", ".join(f"{k} {v}" for k, v in r["golden"].items()) + "."]
     if r.get("baseline"):
         b = r["baseline"]
         lines += ["", f"**Per-pair baseline** (follower_vehicle + cyclist_close_to_moving_sut): {b['baseline_s']:.1f} s "
@@ -196,6 +239,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--rows", type=int, help="override the tier's row count (for trying the harness)")
     parser.add_argument("--ego", default="every:10", help="SUT choice (see match --ego; default every:10)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the per-pair baseline at tier S")
+    parser.add_argument("--write-golden", action="store_true",
+                        help="store this run's matches, phases and KPIs as the tier's golden (benchmarks/golden/)")
     args = parser.parse_args(argv)
     rows = args.rows or TIERS[args.tier]
     work = WORK / args.tier
@@ -209,18 +254,28 @@ def main(argv: list[str] | None = None) -> dict:
 
     floor_first = floor_s(tracks)
     with recording() as rec:
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), cpu_seconds()
         summary = ingest("parquet", [work / "parquet"], db)
-        ingest_s = time.perf_counter() - start
-        start = time.perf_counter()
+        ingest_s, ingest_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+        start, cpu = time.perf_counter(), cpu_seconds()
         result = match(db, ego=args.ego)
-        match_s = time.perf_counter() - start
-    floor = min(floor_first, floor_s(tracks))
+        match_s, match_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    # re-matching after a parameter change: match again on the ingested file (force: every drive reruns)
+    with recording() as rematch_rec:
+        start, cpu = time.perf_counter(), cpu_seconds()
+        match(db, ego=args.ego, force=True)
+        rematch_s, rematch_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    floor_second = floor_s(tracks)
+    floor, floor_cpu = min(floor_first, floor_second)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
     stages = {"ingest (read, kinematics, write)": ingest_s - rec.seconds.get("localisation", 0.0)}
     stages |= {name: rec.seconds[name] for name in rec.seconds if name not in ("kinematics",)}
     stages["match: storing results"] = match_s - sum(v for k, v in rec.seconds.items()
+                                                     if k not in ("kinematics", "localisation"))
+    cpus = {"ingest (read, kinematics, write)": ingest_cpu - rec.cpu_seconds.get("localisation", 0.0)}
+    cpus |= dict(rec.cpu_seconds)
+    cpus["match: storing results"] = match_cpu - sum(v for k, v in rec.cpu_seconds.items()
                                                      if k not in ("kinematics", "localisation"))
     peaks = dict(rec.peak_rss_bytes)
     peaks["ingest (read, kinematics, write)"] = max(peaks.get("kinematics", 0), peaks.get("localisation", 0))
@@ -231,8 +286,15 @@ def main(argv: list[str] | None = None) -> dict:
         "floor_s": floor, "ingest_s": ingest_s, "match_s": match_s, "pipeline_s": ingest_s + match_s,
         "ratio_to_floor": (ingest_s + match_s) / floor, "cost_per_row_us": 1e6 * (ingest_s + match_s) / n,
         "peak_rss_bytes": peak, "duckdb_memory_limit": memory_limit(),
+        "rematch_s": rematch_s, "rematch_rows_per_s": n / rematch_s, "rematch_ratio_to_floor": rematch_s / floor,
+        "rematch_stages": dict(rematch_rec.seconds), "rematch_stage_cpu_s": dict(rematch_rec.cpu_seconds),
+        "rematch_cpu_s": rematch_cpu,
+        "floor_cpu_s": floor_cpu, "ingest_cpu_s": ingest_cpu, "match_cpu_s": match_cpu,
+        "pipeline_cpu_s": ingest_cpu + match_cpu, "cpu_ratio_to_floor": (ingest_cpu + match_cpu) / floor_cpu,
+        "golden": golden_check(db, args.tier, args.write_golden),
         "stages": {name: {"seconds": s, "rows_per_s": n / s if s > 0 else None, "ratio_to_floor": s / floor,
-                          "peak_rss_bytes": peaks.get(name, peak)} for name, s in stages.items()},
+                          "cpu_seconds": cpus.get(name), "peak_rss_bytes": peaks.get(name, peak)}
+                   for name, s in stages.items()},
         "measured_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "machine": f"{platform.machine()}, {multiprocessing.cpu_count()} cores, Python {platform.python_version()}",
     }

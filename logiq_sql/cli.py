@@ -86,7 +86,7 @@ def cmd_match(args: argparse.Namespace) -> int:
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
                    progress=_say(args.quiet), force=args.force, engine=args.engine,
                    spark_master=args.spark_master, spark_tables=spark_tables, wait_s=args.wait,
-                   scenario_path=args.scenario_path, ego_kinds=args.ego_kinds)
+                   scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -290,6 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep ego-actor pairs whose centres are at most this far apart "
                         f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
     p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
+    p.add_argument("--keep", action="store_true",
+                   help="also store the intermediate tables relations, passages and encroachments for analysts "
+                        "(ego_lanes is always stored); without it they are recomputed on demand (explain, "
+                        "relations_of)")
     p.add_argument("--force", action="store_true",
                    help="rerun drives already matched with the same scenario version, parameters, ego and range "
                         "(skipped by default)")

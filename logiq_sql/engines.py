@@ -338,7 +338,7 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
               "-- bind the parameters, never format them in:  spark.sql(text, args={...the values below...})"]
     header += [f"-- :{name} = {sql_literal(value)}" for name, value in args.items()]
     header += ["-- reads the canonical tables (docs/tables.md) and run_drives (drive_id of the drives to match) as "
-               "tables or temp views" + ("; encroachments (shapely) as stored by a match" if s.junctions else "")]
+               "tables or temp views" + ("; encroachments (shapely) as stored by match --keep" if s.junctions else "")]
     if s.junctions:
         header.append("-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached "
                       "for batch Resolution): run it step by step, as match --engine spark does (docs/engines.md)")

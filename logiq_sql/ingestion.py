@@ -211,6 +211,12 @@ def _one_row_per_frame(rows: pl.DataFrame, dt_s: float) -> tuple[pl.DataFrame, l
     (jitter, a stray extra sample): the one nearest to frame * dt_s is kept. Rows with the same actor and t_s but
     different values contradict each other: all of them are dropped, so that frame is missing for the actor."""
     reasons = []
+    # the usual case, checked at once: no two rows share an (actor, frame) or an (actor, t_s), so there are no
+    # exact copies, no contradictions and no second sample in a frame (the steps below would drop nothing)
+    clash = rows.select(pl.struct("actor_id", "frame").is_duplicated().any().alias("frame"),
+                        pl.struct("actor_id", "t_s").is_duplicated().any().alias("t")).row(0)
+    if not any(clash):
+        return rows, reasons
     unique = rows.unique(maintain_order=True)
     if unique.height < rows.height:
         reasons.append(f"{rows.height - unique.height} exact duplicate row(s) dropped")
@@ -304,20 +310,22 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         _drop_outputs(con, ids["drive_id"].to_list())
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
-        for drive in maps.values():
-            for table in schema.MAP_TABLE_NAMES:
-                db.insert(con, table, getattr(drive, table))
-        for drive, *_ in accepted:
-            db.insert(con, "traffic_light_states", drive.traffic_light_states)
+        # one insert per table for the whole batch (one per map or drive cost 0.4 s per 100 drives)
+        for table in schema.MAP_TABLE_NAMES:
+            _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
+        _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])
         with stage("kinematics"):
-            con.register("tracks_raw", pl.concat([t for _, t, *_ in accepted]))
-            con.execute("create or replace temp table _staged as " + query_text("staging/tracks.sql"))
+            # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
+            # order, a track being the rows of one track_no; written once, into tracks
+            raw = pl.concat([t for _, t, *_ in accepted])
+            con.register("tracks_raw", raw.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()))
+            con.execute("insert into tracks " + query_text("staging/tracks.sql"))
             con.unregister("tracks_raw")
-            con.execute("insert into tracks select * from _staged")
+            del raw
         for map_id, drive in maps.items():
             on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
             con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
-            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from _staged "
+            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from tracks "
                              "where drive_id in (select drive_id from _on_map)").pl()
             with stage("localisation"):
                 located = locate(staged, drive.lanes)
@@ -328,12 +336,18 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             "rows_read": d.rows_read or d.tracks.height, "rows_rejected": d.rows_rejected + dropped,
             "status": "ingested", "reject_reason": reason, "attribution": d.attribution,
         } for d, _, dropped, reason in accepted], schema=schema.DRIVE_INPUTS.polars_schema))
-        con.execute("drop table _staged")
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
         raise
     return written
+
+
+def _insert_all(con: duckdb.DuckDBPyConnection, table: str, frames: list[pl.DataFrame]) -> None:
+    """Append the rows of every frame to ``table`` in one insert."""
+    frames = [f for f in frames if not f.is_empty()]
+    if frames:
+        db.insert(con, table, pl.concat(frames, how="diagonal_relaxed"))
 
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import db, units
+from logiq_sql import db, relations_of, units
 from logiq_sql.batching import batches
 from logiq_sql.engines import check_engine, open_engine
 from logiq_sql.errors import ScenarioError, did_you_mean
@@ -90,7 +90,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
           spark_master: str | None = None, spark_tables: str | Path | None = None,
           batch_rows: int = MATCH_BATCH_ROWS, scenario_path: ScenarioPath = None,
-          ego_kinds: str | None = None, wait_s: float = 0.0) -> MatchResult:
+          ego_kinds: str | None = None, wait_s: float = 0.0, keep: bool = False) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -116,6 +116,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         scenario_path: a folder of the user's own scenarios (and their SQL), besides the built-in ones.
         ego_kinds: the kinds that can be under test for ``auto``, ``all`` and ``every:N``, comma-separated
             (default vehicle, truck, bus, motorcycle, emergency_vehicle).
+        keep: also store the intermediate tables relations, passages and encroachments for analysts (ego_lanes
+            is always stored); without it, any such rows an earlier run kept for these drives are removed.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {}, scenario_path)
@@ -127,6 +129,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
         cleanup.callback(runner.close)
+        relations_of.install(con)  # the relation of any ego on demand, since relations is kept only with keep
         ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
         # scenarios that share the relation settings and the drives still to match share their relations
@@ -157,7 +160,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
                 say(f"  {s.name}: {results[-1].matches.height} matches")
             runner.persist(tuple(PERSISTED))
             runner.release_drives()
-            store_batch(con, run_id, ego, range_m, todo, results)
+            store_batch(con, run_id, ego, range_m, todo, results, keep)
         con.register("run_drives", run_drives)
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date

@@ -179,7 +179,7 @@ def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "a
         return render_for_engine(engine, s, scenario_steps(s), values)
     header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
               f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
-              + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match once first.\n"
+              + ("-- encroachments (shapely, logiq_sql/encroachment.py) is read from the file: match --keep once first.\n"
                  if s.junctions else "")
               + "create or replace temp table run_drives as "
                 "select drive_id from drive_inputs where status = 'ingested';\n")

@@ -21,6 +21,10 @@ from logiq_sql.timing import stage
 # file whose header documents their columns
 PERSISTED = {"relations": "queries/relations/relations.sql", "ego_lanes": "queries/relations/ego_lanes.sql",
              "passages": "queries/junctions/passages.sql", "encroachments": "logiq_sql/encroachment.py"}
+# stored by every run, the rest of PERSISTED only with ``keep`` (match --keep): evaluate reads which egos the
+# matcher used from ego_lanes (a row per ego frame), while relations (about twice the track rows), passages and
+# encroachments are recomputed on demand (explain, the relations_of table macro)
+STORED_ALWAYS = ("ego_lanes",)
 ENCROACHMENTS_GRAIN = ("one row per (drive_id, ego_id, actor_id) pair of junction passages whose swept paths share "
                        "an area")
 EXPORTED = ("drives", "matches", "match_phases", "kpis", "coverage", "coverage_samples", "match_runs",
@@ -45,15 +49,24 @@ def ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]
 
 
 def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: float, run_drives: pl.DataFrame,
-                results: list[ScenarioOutput]) -> None:
-    """Replace the outputs of ``results`` on ``run_drives`` (and the kept relation tables) in one transaction."""
+                results: list[ScenarioOutput], keep: bool = False) -> None:
+    """Replace the outputs of ``results`` on ``run_drives`` (and the kept relation tables: STORED_ALWAYS, the rest
+    of PERSISTED only with ``keep``) in one transaction."""
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+    stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
+    made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
+    for table in (t for t in PERSISTED if t in made and (keep or t in STORED_ALWAYS)):
+        # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
+        # keeps the empty table's statistics, so filters on it (`where drive_id = ...`, the delete below in a
+        # later batch) skipped every row (kept relations were stored twice)
+        con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
     con.execute("begin transaction")
     try:
-        stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
-        made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
-        for table in (t for t in PERSISTED if t in made):
-            con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
+        have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
+        for table in (t for t in PERSISTED if t in have and not (keep or t in STORED_ALWAYS)):
+            # not kept this run: rows an earlier run kept for these drives would no longer be the last run's
+            con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
+        for table in (t for t in PERSISTED if t in made and (keep or t in STORED_ALWAYS)):
             con.execute(f"delete from {stored}.{table} where drive_id in (select drive_id from run_drives)")
             con.execute(f"insert into {stored}.{table} select * from temp.main.{table}")
             describe_persisted(con, stored, table)

@@ -1,8 +1,9 @@
 """Wall time and peak memory of the pipeline's stages, recorded only while a benchmark listens.
 
 ``with stage("localisation"):`` costs one global read when nobody records; inside ``recording()`` every stage
-adds its wall seconds (summed over calls) and the highest resident memory seen while it ran (sampled every
-20 ms by a background thread, so DuckDB's and shapely's native memory count too).
+adds its wall seconds (summed over calls), the CPU seconds of the whole process meanwhile (every thread: DuckDB's,
+shapely's; steadier than wall time on a shared machine) and the highest resident memory seen while it ran
+(sampled every 20 ms by a background thread, so DuckDB's and shapely's native memory count too).
 """
 
 from __future__ import annotations
@@ -27,9 +28,16 @@ def rss_bytes() -> int:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
+def cpu_seconds() -> float:
+    """User and system CPU time of this process so far, all threads."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 @dataclass
 class Stages:
     seconds: dict[str, float] = field(default_factory=dict)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)
     peak_rss_bytes: dict[str, int] = field(default_factory=dict)
     calls: dict[str, int] = field(default_factory=dict)
     _open: set[str] = field(default_factory=set)
@@ -53,15 +61,16 @@ def stage(name: str) -> Iterator[None]:
     with rec._lock:
         rec._open.add(name)
     rec._seen(rss_bytes())
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), cpu_seconds()
     try:
         yield
     finally:
-        elapsed = time.perf_counter() - start
+        elapsed, cpu = time.perf_counter() - start, cpu_seconds() - cpu_start
         rec._seen(rss_bytes())
         with rec._lock:
             rec._open.discard(name)
             rec.seconds[name] = rec.seconds.get(name, 0.0) + elapsed
+            rec.cpu_seconds[name] = rec.cpu_seconds.get(name, 0.0) + cpu
             rec.calls[name] = rec.calls.get(name, 0) + 1
 
 

@@ -32,8 +32,8 @@ def build_matched_db(db: Path) -> Path:
     with duckdb.connect(str(db), read_only=True) as con:
         recorded = [r[0] for r in con.execute("select drive_id from drive_inputs where source_format <> 'sumo'")
                     .fetchall()]
-    match(db, drives=recorded)
-    match(db, drives=["junction_s1"], ego="every:3")
+    match(db, drives=recorded, keep=True)  # keep: docs/queries.md also queries the kept relations
+    match(db, drives=["junction_s1"], ego="every:3", keep=True)
     return db
 
 

@@ -648,7 +648,7 @@ def test_a_reingested_drive_without_matches_keeps_no_old_relations(tmp_path):
     db = tmp_path / "x.duckdb"
     folder = write(tmp_path / "in", scene("d1"))
     ingest("parquet", [folder], db)
-    assert match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded").matches.is_empty()
+    assert match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded", keep=True).matches.is_empty()
 
     def kept_rows() -> dict[str, int]:
         with duckdb.connect(str(db), read_only=True) as con:

@@ -17,7 +17,7 @@ FIRST = [NGSIM / "USA_US101-22_1_T-1.xml.gz", NGSIM / "USA_US101-26_1_T-1.xml.gz
 LATER = NGSIM / "USA_US101-24_1_T-1.xml.gz"
 SCENARIOS = ["follower_vehicle", "sut_cut_out"]
 TABLES = ("matches", "match_phases", "kpis", "coverage", "coverage_samples", "drive_scenarios", "match_runs",
-          "relations", "drives")
+          "ego_lanes", "drives")  # ego_lanes: the kept table every run stores (relations only with keep)
 
 
 def snapshot(db: Path) -> dict[str, pl.DataFrame]:
@@ -117,12 +117,12 @@ def test_reingesting_a_drive_makes_the_next_run_match_it_again(first_run):
     def rows_of_drive() -> dict[str, int]:
         with duckdb.connect(str(first_run), read_only=True) as con:
             return {t: con.execute(f"select count(*) from {t} where drive_id like $d", {"d": drive + "%"}
-                                   ).fetchall()[0][0] for t in ("matches", "drive_scenarios", "relations")}
+                                   ).fetchall()[0][0] for t in ("matches", "drive_scenarios", "ego_lanes")}
 
     assert rows_of_drive()["matches"] > 0
     ingest("commonroad", [FIRST[0]], first_run)
-    # its old matches and relations went with its old rows: nothing stale until the next match
-    assert rows_of_drive() == {"matches": 0, "drive_scenarios": 0, "relations": 0}
+    # its old matches and kept tables went with its old rows: nothing stale until the next match
+    assert rows_of_drive() == {"matches": 0, "drive_scenarios": 0, "ego_lanes": 0}
     result = match(first_run, scenarios=SCENARIOS)
     assert rows_of_drive()["matches"] > 0
     assert result.up_to_date == {"follower_vehicle": 1, "sut_cut_out": 1}
@@ -139,7 +139,7 @@ def test_scenarios_with_different_drives_to_match_keep_every_kept_table_unique(t
     match(db, scenarios=["follower_vehicle"], ego="every:5")
     ingest("sumo", [runs / "j2"], db)
     result = match(db, scenarios=["unprotected_left_turn_with_yield_and_traffic_light", "follower_vehicle"],
-                   ego="every:5")
+                   ego="every:5", keep=True)
     assert result.up_to_date == {"unprotected_left_turn_with_yield_and_traffic_light": 0, "follower_vehicle": 1}
     with duckdb.connect(str(db), read_only=True) as con:
         passages = con.sql("select drive_id, actor_id, passage from passages").pl()

@@ -34,7 +34,7 @@ def oncoming_s(t: np.ndarray, enters_at: float = 5.0) -> np.ndarray:
 def base(tmp_path_factory):
     path = make_junction_db(tmp_path_factory.mktemp("lt"), [
         drive("ego", T, ego_s(T), "S_left", is_ego=True), drive("car", T, oncoming_s(T), "N_straight")])
-    result = match(path, [SCENARIO])
+    result = match(path, [SCENARIO], keep=True)  # keep: passages and encroachments are read below
     return path, result
 
 

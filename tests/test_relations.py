@@ -15,7 +15,7 @@ from tests.helpers import Y1, actor, make_db, times
 
 
 def relation_rows(db) -> pl.DataFrame:
-    match(db, scenarios=["follower_vehicle"])
+    match(db, scenarios=["follower_vehicle"], keep=True)  # keep: the relation rows are read below
     with duckdb.connect(str(db), read_only=True) as con:
         return con.sql("select * from relations order by actor_id, frame").pl()
 

@@ -59,7 +59,7 @@ def match_both(duck: Path, spark_db: Path, **kwargs) -> dict[str, float]:
     seconds = {}
     for engine, db in (("duckdb", duck), ("spark", spark_db)):
         started = time.perf_counter()
-        match(db, engine=engine, **kwargs)
+        match(db, engine=engine, keep=True, **kwargs)  # keep: the kept relation tables are compared too
         seconds[engine] = time.perf_counter() - started
     print(f"\nmatch {kwargs.get('scenarios')}: DuckDB {seconds['duckdb']:.1f} s, Spark {seconds['spark']:.1f} s")
     return seconds

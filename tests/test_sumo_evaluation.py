@@ -67,7 +67,7 @@ def test_following_ttc_agrees_with_sumo_ssm(runs):
     ssm = read_ssm_following_ttc(runs / "runs" / "motorway" / "ssm.xml.gz")
     assert ssm.height >= 20
     match(runs / "eval.duckdb", scenarios=["follower_vehicle"], ego=",".join(ssm["ego_id"].unique()),
-          drives=["motorway"])
+          drives=["motorway"], keep=True)
     con = logiq_db.connect(runs / "eval.duckdb")
     try:
         pairs = ttc_against_ssm(con, "motorway", ssm)

@@ -1,6 +1,8 @@
 -- staging: tracks
 -- grain: one row per (drive_id, actor_id, frame), canonical columns, kinematics completed
--- reads: tracks_raw (a reader's rows; heading_rad, speed_mps, accel_mps2 may be NULL)
+-- reads: tracks_raw (a reader's rows in (drive_id, actor_id, frame) order, with track_no the same for every
+--        row of one (drive_id, actor_id) and different from its neighbours'; heading_rad, speed_mps, accel_mps2
+--        may be NULL)
 -- params: none
 --
 -- What is derived, only where the source left it NULL:
@@ -10,19 +12,24 @@
 --                last moving heading (else the first one, else 0): a standing car keeps its heading
 --   speed_mps    velocity projected on the heading (negative when reversing); NULL for a one-sample track
 --   accel_mps2   central difference of speed, then a centred 5-sample moving average (the smoothing)
+--
+-- Speed: the rows arrive in track order, so every window runs over that order (an empty OVER (), which DuckDB
+-- guarantees keeps the input order of one table: docs "Order Preservation") and a neighbour counts only when it
+-- has the row's track_no. Partitions by drive and actor sort on strings: 2.6 s of CPU against 0.95 s for these
+-- windows over 1 M rows (tier S), with identical results. DuckDB only: Spark keeps no input order.
 with
 
-ordered as (
+neighbours as (
     select
         *,
-        lag(x_m) over w as x_prev,
-        lead(x_m) over w as x_next,
-        lag(y_m) over w as y_prev,
-        lead(y_m) over w as y_next,
-        lag(t_s) over w as t_prev,
-        lead(t_s) over w as t_next
+        case when lag(track_no) over w = track_no then lag(x_m) over w end as x_prev,
+        case when lead(track_no) over w = track_no then lead(x_m) over w end as x_next,
+        case when lag(track_no) over w = track_no then lag(y_m) over w end as y_prev,
+        case when lead(track_no) over w = track_no then lead(y_m) over w end as y_next,
+        case when lag(track_no) over w = track_no then lag(t_s) over w end as t_prev,
+        case when lead(track_no) over w = track_no then lead(t_s) over w end as t_next
     from tracks_raw
-    window w as (partition by drive_id, actor_id order by frame)
+    window w as ()
 ),
 
 velocity as (
@@ -32,7 +39,7 @@ velocity as (
             / nullif(coalesce(t_next, t_s) - coalesce(t_prev, t_s), 0) as vx_mps,
         (coalesce(y_next, y_m) - coalesce(y_prev, y_m))
             / nullif(coalesce(t_next, t_s) - coalesce(t_prev, t_s), 0) as vy_mps
-    from ordered
+    from neighbours
 ),
 
 motion_heading as (
@@ -40,8 +47,24 @@ motion_heading as (
         *,
         case
             when vx_mps * vx_mps + vy_mps * vy_mps > 0.25 then atan2(vy_mps, vx_mps)
-        end as moving_heading_rad
+        end as moving_heading_rad,
+        -- the track of the row that has a moving heading (NULL exactly where moving_heading_rad is NULL)
+        case when vx_mps * vx_mps + vy_mps * vy_mps > 0.25 then track_no end as moving_track_no
     from velocity
+),
+
+heading_neighbours as (
+    -- the last moving heading up to this row and the first from this row on, each with its track
+    select
+        *,
+        last_value(moving_heading_rad ignore nulls) over before_row as last_moving_rad,
+        last_value(moving_track_no ignore nulls) over before_row as last_moving_track_no,
+        first_value(moving_heading_rad ignore nulls) over from_row as first_moving_rad,
+        first_value(moving_track_no ignore nulls) over from_row as first_moving_track_no
+    from motion_heading
+    window
+        before_row as (rows between unbounded preceding and current row),
+        from_row as (rows between current row and unbounded following)
 ),
 
 headed as (
@@ -50,17 +73,12 @@ headed as (
         coalesce(
             heading_rad,
             moving_heading_rad,
-            last_value(moving_heading_rad ignore nulls) over (
-                partition by drive_id, actor_id order by frame
-                rows between unbounded preceding and current row
-            ),
-            first_value(moving_heading_rad ignore nulls) over (
-                partition by drive_id, actor_id order by frame
-                rows between unbounded preceding and unbounded following
-            ),
+            case when last_moving_track_no = track_no then last_moving_rad end,
+            -- no moving sample up to here: the first one of the track (none before, so the next one is it)
+            case when first_moving_track_no = track_no then first_moving_rad end,
             0.0
         ) as heading_filled_rad
-    from motion_heading
+    from heading_neighbours
 ),
 
 sped as (
@@ -74,11 +92,23 @@ sped as (
 speed_diff as (
     select
         *,
-        (coalesce(lead(speed_filled_mps) over w, speed_filled_mps)
-            - coalesce(lag(speed_filled_mps) over w, speed_filled_mps))
-            / nullif(coalesce(lead(t_s) over w, t_s) - coalesce(lag(t_s) over w, t_s), 0) as raw_accel_mps2
+        (coalesce(case when lead(track_no) over w = track_no then lead(speed_filled_mps) over w end, speed_filled_mps)
+            - coalesce(case when lag(track_no) over w = track_no then lag(speed_filled_mps) over w end, speed_filled_mps))
+            / nullif(coalesce(t_next, t_s) - coalesce(t_prev, t_s), 0) as raw_accel_mps2
     from sped
-    window w as (partition by drive_id, actor_id order by frame)
+    window w as ()
+),
+
+accel_window as (
+    -- the raw accelerations of the two samples before and after, where they belong to the same track
+    select
+        *,
+        case when lag(track_no, 2) over w = track_no then lag(raw_accel_mps2, 2) over w end as a_m2,
+        case when lag(track_no, 1) over w = track_no then lag(raw_accel_mps2, 1) over w end as a_m1,
+        case when lead(track_no, 1) over w = track_no then lead(raw_accel_mps2, 1) over w end as a_p1,
+        case when lead(track_no, 2) over w = track_no then lead(raw_accel_mps2, 2) over w end as a_p2
+    from speed_diff
+    window w as ()
 )
 
 select
@@ -94,10 +124,14 @@ select
     speed_filled_mps as speed_mps,
     coalesce(
         accel_mps2,
-        avg(raw_accel_mps2) over (
-            partition by drive_id, actor_id order by frame rows between 2 preceding and 2 following
-        )
+        -- the mean of the defined values among the five (NULL when none is)
+        (coalesce(a_m2, 0) + coalesce(a_m1, 0) + coalesce(raw_accel_mps2, 0) + coalesce(a_p1, 0) + coalesce(a_p2, 0))
+            / nullif(
+                case when a_m2 is null then 0 else 1 end + case when a_m1 is null then 0 else 1 end
+                + case when raw_accel_mps2 is null then 0 else 1 end + case when a_p1 is null then 0 else 1 end
+                + case when a_p2 is null then 0 else 1 end, 0
+            )
     ) as accel_mps2,
     length_m,
     width_m
-from speed_diff
+from accel_window
