@@ -62,7 +62,7 @@ def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str],
     """Every step of the scenarios on DuckDB; each query file also on Polars over DuckDB's inputs to it."""
     con = db.connect(path)
     try:
-        run_drives = selectselect_run_drives(con, None)
+        run_drives = select_run_drives(con, None)
         con.register("run_drives", run_drives)
         duck, polars = DuckEngine(con), PolarsEngine(con)
         polars.register("run_drives", run_drives)
