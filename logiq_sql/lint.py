@@ -16,7 +16,7 @@ import sqlglot
 from sqlglot import exp
 from sqlglot.errors import ErrorLevel
 
-from logiq_sql.engines import OVERRIDES, POLARS_UNSUPPORTED, digests_after
+from logiq_sql.engines import OVERRIDES, POLARS_UNSUPPORTED, digests_after, override
 from logiq_sql.paths import data_dir
 
 # function names (as sqlglot spells the node class) that do not carry over to Spark
@@ -131,7 +131,8 @@ def lint_scenarios(names: list[str] | None = None, scenario_path: Path | str | N
         problems += found
         if not found:
             for rel in dict.fromkeys(scenario_queries(s)):
-                problems += lint_sql(query_text(rel), shown_path(rel))
+                problems += lint_sql(query_text(rel), shown_path(rel), polars_override=override("polars", rel) is not None,
+                                     polars_refused=rel in POLARS_UNSUPPORTED)
     return list(dict.fromkeys(problems))
 
 

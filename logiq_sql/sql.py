@@ -60,9 +60,25 @@ def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
     return out
 
 
+# Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:
+# dict-surviving cache: global dictionary column 0 changed identity after being seeded for dictionary caching" (its
+# dictionary-aware caching operator, added by duckdb/duckdb#23447) on the bundled SUMO junction; on one thread it gives the rows. Remove an entry
+# when a DuckDB release no longer fails (tests/test_relations_of.py and the golden test run that drive).
+SINGLE_THREADED = ("relations/ego_lanes.sql",)
+
+
 def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object]) -> None:
     """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours)."""
-    con.execute(f"create or replace temp table {table} as {query_text(relative)}", bind(relative, values))
+    statement = f"create or replace temp table {table} as {query_text(relative)}"
+    if relative not in SINGLE_THREADED:
+        con.execute(statement, bind(relative, values))
+        return
+    threads = con.execute("select current_setting('threads')").fetchone()[0]
+    con.execute("set threads = 1")
+    try:
+        con.execute(statement, bind(relative, values))
+    finally:
+        con.execute(f"set threads = {int(threads)}")
 
 
 def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:

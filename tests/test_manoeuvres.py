@@ -32,7 +32,7 @@ def gradual_cut_out(tmp):
 
 def test_a_three_second_lane_change_chains_the_cut_out_phases(tmp_path):
     db = gradual_cut_out(tmp_path)
-    result = match(db, scenarios=[CUT_OUT])
+    result = match(db, scenarios=[CUT_OUT], keep=True)  # the relations are read below
     npc = result.matches.filter(pl.col("actor_id") == "npc")
     assert intervals(npc, CUT_OUT) == [("ego", "npc", 2.5, 8.6)]
     phases = result.match_phases.join(npc.select("match_id"), on="match_id").sort("phase_index")

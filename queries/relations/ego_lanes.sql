@@ -88,22 +88,38 @@ transitions as (
     where r.previous_end_frame = r.run_start_frame - 1
 ),
 
-pending as (
-    -- every ego frame with the last transition before it (over segment boundaries the best lane's id may
-    -- change again without a new transition)
+last_transition as (
+    -- every ego frame with the frame of the last transition at or before it: transitions happen at ego frames,
+    -- so the running max of the frames that have one is the last of them (a running max and a join back run on
+    -- every engine, where last_value(... ignore nulls) does not parse on Polars SQL)
     select
         e.drive_id,
         e.ego_id,
         e.frame,
         e.lane_id,
-        last_value(tr.map_id ignore nulls) over w as map_id,
-        last_value(tr.transition_frame ignore nulls) over w as transition_frame,
-        last_value(tr.from_lane_id ignore nulls) over w as from_lane_id,
-        last_value(tr.side ignore nulls) over w as side
+        max(tr.transition_frame) over (
+            partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+        ) as transition_frame
     from ego_rows as e
     left join transitions as tr
         on e.drive_id = tr.drive_id and e.ego_id = tr.ego_id and e.frame = tr.transition_frame
-    window w as (partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row)
+),
+
+pending as (
+    -- every ego frame with the last transition before it (over segment boundaries the best lane's id may
+    -- change again without a new transition)
+    select
+        lt.drive_id,
+        lt.ego_id,
+        lt.frame,
+        lt.lane_id,
+        tr.map_id,
+        lt.transition_frame,
+        tr.from_lane_id,
+        tr.side
+    from last_transition as lt
+    left join transitions as tr
+        on lt.drive_id = tr.drive_id and lt.ego_id = tr.ego_id and lt.transition_frame = tr.transition_frame
 ),
 
 old_lane as (
