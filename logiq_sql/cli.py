@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 
 from logiq_sql.errors import LogiqError
-from logiq_sql.evaluate import add_evaluate_parser
-from logiq_sql.labels import add_label_parser
 from logiq_sql.match import DEFAULT_RELATION_RANGE
 
 # exit codes a scheduler can act on
@@ -47,10 +45,34 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from logiq_sql.simulate import simulate
+    from logiq_sql.evaluation.simulate import simulate
 
     print(simulate(args.kind, args.minutes, args.seed, args.out))
     return 0
+
+
+def cmd_label(args: argparse.Namespace) -> int:
+    from logiq_sql.evaluation.labels import label_runs
+
+    labels = label_runs(args.runs, args.scenario or None, _set_pairs(args.set))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    labels.write_parquet(out)
+    counts = labels.group_by("drive_id", "scenario").len().sort("drive_id", "scenario")
+    for r in counts.iter_rows(named=True):
+        print(f"  {r['drive_id']}: {r['scenario']}: {r['len']} label(s)", file=sys.stderr)
+    print(f"{out}: {labels.height} label(s) of {labels['drive_id'].n_unique()} run(s)")
+    return EXIT_OK
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from logiq_sql.evaluation.evaluate import evaluate
+
+    result = evaluate(args.db, args.labels, iou_threshold=args.iou, out=args.out)
+    print(result.summary())
+    if args.out:
+        print(f"Parquet written to {Path(args.out).resolve()}")
+    return EXIT_OK
 
 
 def cmd_match(args: argparse.Namespace) -> int:
@@ -235,9 +257,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="FILE", help="HTML file to write, e.g. report.html")
     p.set_defaults(func=cmd_report)
 
-    add_label_parser(sub)
-    add_evaluate_parser(sub)
+    _add_evaluation_parsers(sub)
     return parser
+
+
+def _add_evaluation_parsers(sub) -> None:
+    """``label`` and ``evaluate``: the evaluation harness (logiq_sql.evaluation), outside the product's path."""
+    p = sub.add_parser(
+        "label", help="ground-truth labels from a simulator's own records (for evaluate)", epilog=EPILOG,
+        description="Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change "
+                    "output, lanes and lane positions, vType boxes, the network's connections, signal states), "
+                    "independently of logiq_sql's SQL; `logiq-sql evaluate` scores matches against them. "
+                    "Definitions: docs/evaluation.md.")
+    p.add_argument("source", choices=["sumo"], help="sumo: run folders written by logiq-sql simulate")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them")
+    p.add_argument("--out", required=True, metavar="FILE", help="labels Parquet file to write")
+    p.add_argument("--scenario", action="append", metavar="NAME",
+                   help="scenario to label (repeatable; default every scenario the labeller knows, "
+                        "docs/evaluation.md)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter, with its unit, as for match")
+    p.set_defaults(func=cmd_label)
+
+    p = sub.add_parser(
+        "evaluate", help="score the matches of a DuckDB file against ground-truth labels", epilog=EPILOG,
+        description="Per scenario: event-level precision, recall and F1 (one-to-one pairs at temporal IoU >= "
+                    "--iou) and timestamp balanced accuracy over every frame of the egos the matcher used. "
+                    "Definitions: docs/evaluation.md.")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file after logiq-sql match")
+    p.add_argument("--labels", required=True, metavar="FILE", help="labels Parquet (e.g. from logiq-sql label sumo)")
+    p.add_argument("--iou", type=float, default=0.5, metavar="X", help="IoU threshold of an event hit (default 0.5)")
+    p.add_argument("--out", metavar="DIR", help="write evaluation.parquet and evaluation_events.parquet into DIR")
+    p.set_defaults(func=cmd_evaluate)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -354,7 +354,7 @@ def test_two_fcd_files_in_one_folder_are_an_input_error(tmp_path):
 
 def test_simulate_without_sumo_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "sumo", None)  # import sumo now raises ImportError
-    from logiq_sql.simulate import simulate
+    from logiq_sql.evaluation.simulate import simulate
 
     with pytest.raises(LogiqError, match=re.escape("pip install 'logiq-sql[sumo]'")):
         simulate("junction", 1, 7, tmp_path / "x")

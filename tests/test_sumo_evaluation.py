@@ -18,7 +18,7 @@ import pytest
 from logiq_sql import db as logiq_db
 from logiq_sql import match
 from logiq_sql.cli import main
-from logiq_sql.crosscheck import read_ssm_following_ttc, ttc_against_ssm
+from logiq_sql.evaluation.crosscheck import read_ssm_following_ttc, ttc_against_ssm
 from logiq_sql.readers.sumo import read_fcd
 from logiq_sql.units import factor
 
