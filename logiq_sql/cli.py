@@ -45,9 +45,18 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from logiq_sql.evaluation.simulate import simulate
+    from logiq_sql.evaluation.perceive import Noise
+    from logiq_sql.evaluation.simulate import Regime, simulate
 
-    print(simulate(args.kind, args.minutes, args.seed, args.out))
+    regime = Regime(lane_change_duration_s=args.lane_change_duration, truck_share=args.truck_share,
+                    bus_share=args.bus_share, approach_lanes=args.approach_lanes, demand=args.demand,
+                    creep=args.creep)
+    noise = Noise(position_m=args.noise_position, heading_deg=args.noise_heading, speed_mps=args.noise_speed,
+                  drop_share=args.noise_drop, seed=args.seed if args.noise_seed is None else args.noise_seed)
+    print(simulate(args.kind, args.minutes, args.seed, args.out, regime=regime, noise=noise,
+                   perceived=args.perceived))
+    if args.perceived:
+        print(f"perceived copy ({noise}): {Path(args.perceived) / Path(args.out).name}")
     return 0
 
 
@@ -179,6 +188,30 @@ def build_parser() -> argparse.ArgumentParser:
                                                               "are warm-up)")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1); the same seed gives the same run")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write the run into")
+    g = p.add_argument_group("regime (docs/sumo.md, Regimes)")
+    g.add_argument("--lane-change-duration", type=float, default=3.0, metavar="S",
+                   help="seconds a lane change takes (SUMO --lanechange.duration; default 3; 0 = instantaneous)")
+    g.add_argument("--truck-share", type=float, default=0.15, metavar="X",
+                   help="share of motor vehicles that are trucks (default 0.15)")
+    g.add_argument("--bus-share", type=float, default=0.05, metavar="X",
+                   help="share of motor vehicles that are buses or coaches (default 0.05)")
+    g.add_argument("--demand", type=float, default=1.0, metavar="X", help="factor on every traffic flow (default 1)")
+    g.add_argument("--approach-lanes", type=int, default=3, choices=[2, 3, 4],
+                   help="junction: lanes per approach, i.e. its size (default 3)")
+    g.add_argument("--no-creep", dest="creep", action="store_false",
+                   help="junction: left-turners start from the line like other cars (default: they creep)")
+    g = p.add_argument_group("perception-like noise, written to a perceived copy of the run (docs/evaluation.md)")
+    g.add_argument("--perceived", metavar="DIR",
+                   help="also write DIR/<run folder name>: the run with noisy tracks, for ingest; label the original")
+    g.add_argument("--noise-position", type=float, default=0.0, metavar="M",
+                   help="standard deviation of the x and y jitter, metres (default 0)")
+    g.add_argument("--noise-heading", type=float, default=0.0, metavar="DEG",
+                   help="standard deviation of the heading jitter, degrees (default 0)")
+    g.add_argument("--noise-speed", type=float, default=0.0, metavar="MPS",
+                   help="standard deviation of the speed noise, m/s (default 0)")
+    g.add_argument("--noise-drop", type=float, default=0.0, metavar="X",
+                   help="share of detections dropped at random (default 0; 0.02 = 2 %%)")
+    g.add_argument("--noise-seed", type=int, metavar="N", help="seed of the noise (default: --seed)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("match", help="match scenarios against the drives of a DuckDB file", epilog=EPILOG,
