@@ -25,7 +25,7 @@ import polars as pl
 from logiq_sql.evaluation.evaluate import evaluate
 from logiq_sql.evaluation.labels import SCENARIOS, label_sumo
 from logiq_sql.evaluation.perceive import Noise, perceive
-from logiq_sql.evaluation.simulate import Regime, _options, simulate
+from logiq_sql.evaluation.simulate import Regime, command_options, simulate
 from logiq_sql.ingestion import ingest
 from logiq_sql.match import match
 from logiq_sql.readers.sumo import read_fcd, read_vtypes
@@ -72,7 +72,7 @@ def _simulated(setup: Setup, seed: int, run: Path) -> Path:
     """The run folder, simulated unless an identical run is already there."""
     cmd = run / "cmd.txt"
     if not (cmd.is_file() and cmd.read_text().splitlines()[0].endswith(
-            _options(setup.kind, setup.minutes, seed, setup.regime))):
+            command_options(setup.kind, setup.minutes, seed, setup.regime))):
         simulate(setup.kind, setup.minutes, seed, run, regime=setup.regime)
     return run
 

@@ -317,7 +317,7 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path, regime: Regi
     commands = [netconvert, run]
     (out / "sumo.log").write_text("".join(_run(argv, bin_dir, out) for argv in commands))
     version = sumo_version(bin_dir)
-    options = _options(kind, minutes, seed, regime)
+    options = command_options(kind, minutes, seed, regime)
     (out / "cmd.txt").write_text(
         f"# logiq-sql simulate {options}\n"
         f"# {version}; binaries from the eclipse-sumo package (sumo.SUMO_HOME/bin); run in this folder\n"
@@ -328,7 +328,7 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path, regime: Regi
     return SimulationResult(out, kind, minutes, seed, commands, time.perf_counter() - started)
 
 
-def _options(kind: str, minutes: float, seed: int, regime: Regime) -> str:
+def command_options(kind: str, minutes: float, seed: int, regime: Regime) -> str:
     """The simulate command line of this run (every regime option spelt out)."""
     text = (f"{kind} --minutes {minutes:g} --seed {seed} --lane-change-duration {regime.lane_change_duration_s:g} "
             f"--truck-share {regime.truck_share:g} --bus-share {regime.bus_share:g} --demand {regime.demand:g}")
