@@ -6,7 +6,8 @@ and buses among the egos -> evaluate (``logiq_sql.evaluation.campaign.score_driv
 docs/evaluation.md). Event F1 >= 0.95 for follower_vehicle and sut_cut_out on a motorway drive and for
 cyclist_close_to_moving_sut on a junction drive, >= 0.90 for the left turn; >= 0.90 for each with noise (0.2 m
 position, 1 deg heading, 0.1 m/s speed, 2 % of detections dropped). Also logiq_sql's per-frame TTC against SUMO's
-SSM minimum TTC of car-following pairs, and the speed and acceleration KPIs against the FCD values.
+SSM minimum TTC of car-following pairs (on a drive of SUMO's instantaneous lane changes: SSM logs nothing
+with gradual ones), and the speed and acceleration KPIs against the FCD values.
 
 Seeds 950 and 951 are used here only (development: 100-199; the campaign's tables: 900-902).
 """
@@ -21,6 +22,7 @@ import pytest
 
 from logiq_sql import db as logiq_db
 from logiq_sql import match
+from logiq_sql.cli import main
 from logiq_sql.evaluation.campaign import NOISE, Setup, score_drive
 from logiq_sql.evaluation.crosscheck import read_ssm_following_ttc, ttc_against_ssm
 from logiq_sql.evaluation.simulate import Regime
@@ -82,11 +84,24 @@ def test_trucks_and_buses_are_among_the_scored_egos(motorway):
     assert {"vehicle", "truck", "bus"} <= kinds
 
 
-def test_following_ttc_agrees_with_sumo_ssm(motorway):
-    out, _ = motorway
-    run, db = out / "runs" / f"motorway_s{MOTORWAY_SEED}", out / "db" / f"motorway_s{MOTORWAY_SEED}_exact.duckdb"
+@pytest.fixture(scope="module")
+def ssm_run(tmp_path_factory) -> tuple[Path, Path]:
+    """6 minutes of the motorway with SUMO's instantaneous lane changes: SUMO 1.28's SSM device logs no conflict
+    at all once lane changes take time (0 against 12 in 2 minutes of seed 100), so the TTC cross-check needs
+    this regime."""
+    pytest.importorskip("sumo", reason="Eclipse SUMO is not installed: pip install 'logiq-sql[sumo]'")
+    root = tmp_path_factory.mktemp("ssm")
+    run, db = root / "motorway_ssm", root / "ssm.duckdb"
+    assert main(["simulate", "motorway", "--minutes", "6", "--seed", "952", "--lane-change-duration", "0",
+                 "--out", str(run)]) == 0
+    assert main(["ingest", "sumo", str(run), "--db", str(db), "--quiet"]) == 0
+    return run, db
+
+
+def test_following_ttc_agrees_with_sumo_ssm(ssm_run):
+    run, db = ssm_run
     ssm = read_ssm_following_ttc(run / "ssm.xml.gz")
-    assert ssm.height >= 20
+    assert ssm.height >= 10
     match(db, scenarios=["follower_vehicle"], ego=",".join(ssm["ego_id"].unique()))
     con = logiq_db.connect(db)
     try:
