@@ -118,17 +118,46 @@ def markdown(scores: pl.DataFrame) -> str:
     return "\n".join([head, *lines]) + "\n"
 
 
+def sweep_markdown(scores: pl.DataFrame) -> str:
+    """Event F1 per regime and scenario (rows) at every noise level of the sweep (columns), on the swept seeds."""
+    levels = ["exact", "perception", *SWEEP]
+    swept = scores.join(scores.filter(pl.col("noise").is_in(list(SWEEP))).select("regime", "seed").unique(),
+                        on=["regime", "seed"])
+    if swept.is_empty():
+        return ""
+    head = ("| regime | seed | scenario | " + " | ".join(levels) + " |\n|---|---:|---|"
+            + "---:|" * len(levels))
+    lines = []
+    for (regime, seed, scenario), g in swept.sort("regime", "seed", "scenario").group_by(
+            "regime", "seed", "scenario", maintain_order=True):
+        f1 = dict(zip(g["noise"], g["f1"], strict=True))
+        lines.append(f"| {regime} | {seed} | {scenario} | "
+                     + " | ".join("-" if f1.get(n) is None else f"{f1[n]:.3f}" for n in levels) + " |")
+    return "\n".join([head, *lines]) + "\n"
+
+
+def tables(scores: pl.DataFrame) -> str:
+    """The tables of docs/evaluation.md: per regime, seed, noise level and scenario; the sweep."""
+    main_levels = scores.filter(pl.col("noise").is_in(list(NOISE)))
+    return markdown(main_levels) + "\n" + sweep_markdown(scores)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m logiq_sql.evaluation.campaign", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, metavar="DIR")
     p.add_argument("--regimes", nargs="+", choices=list(REGIMES), default=list(REGIMES))
     p.add_argument("--seeds", nargs="+", type=int, default=list(EVAL_SEEDS))
+    p.add_argument("--tables", action="store_true",
+                   help="only print the tables of an earlier campaign's --out DIR/scores.parquet")
     p.add_argument("--sweep", nargs="*", choices=list(REGIMES), metavar="REGIME",
                    help="also the noise sweep (position 0.1/0.2/0.4 m, 2 and 5 %% drops) on the first seed of these "
                         "regimes (none given: every regime)")
     args = p.parse_args(argv)
     out = Path(args.out)
+    if args.tables:
+        print(tables(pl.read_parquet(out / "scores.parquet")))
+        return 0
     out.mkdir(parents=True, exist_ok=True)
     found = []
     for name in args.regimes:
@@ -139,8 +168,8 @@ def main(argv: list[str] | None = None) -> int:
                                      say=lambda m: print(m, file=sys.stderr)))
             scores = pl.concat(found)
             scores.write_parquet(out / "scores.parquet")
-            (out / "scores.md").write_text(markdown(scores))
-    print(markdown(pl.concat(found)))
+            (out / "scores.md").write_text(tables(scores))
+    print(tables(pl.concat(found)))
     return 0
 
 
