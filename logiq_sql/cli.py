@@ -53,6 +53,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                     creep=args.creep)
     noise = Noise(position_m=args.noise_position, heading_deg=args.noise_heading, speed_mps=args.noise_speed,
                   drop_share=args.noise_drop, seed=args.seed if args.noise_seed is None else args.noise_seed)
+    if noise != Noise(seed=noise.seed) and not args.perceived:
+        raise LogiqError("--noise-*: the noise goes into a perceived copy of the run, never into SUMO's own records. "
+                         "Fix: add --perceived DIR (the copy is written to DIR/<run folder name>).")
     print(simulate(args.kind, args.minutes, args.seed, args.out, regime=regime, noise=noise,
                    perceived=args.perceived))
     if args.perceived:

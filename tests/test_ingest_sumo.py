@@ -523,3 +523,9 @@ def test_simulated_regime_has_gradual_lane_changes_trucks_buses_and_a_perceived_
     assert ((y["y0"] - y["y-1"]).abs() < 0.3).all()
     assert ((y["y15"] - y["y-15"]).abs() > 2.0).all()
     assert (tmp_path / "perceived" / "mw" / "fcd.parquet").is_file()
+
+
+def test_noise_without_a_perceived_copy_is_refused(capsys):
+    assert main(["simulate", "motorway", "--out", "never_written", "--noise-drop", "0.02"]) == 2
+    assert "add --perceived DIR" in capsys.readouterr().err
+    assert not Path("never_written").exists()
