@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from logiq_sql.errors import LogiqError
-from logiq_sql.match import DEFAULT_RELATION_RANGE
+from logiq_sql.plan import DEFAULT_RELATION_RANGE
 
 # exit codes a scheduler can act on
 EXIT_OK = 0  # done
@@ -93,7 +93,8 @@ def cmd_match(args: argparse.Namespace) -> int:
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
                    drives=args.drive or None, relation_range=args.relation_range, out=args.out,
                    progress=_say(args.quiet), force=args.force, engine=args.engine,
-                   spark_master=args.spark_master, spark_tables=args.spark_tables)
+                   spark_master=args.spark_master, spark_tables=args.spark_tables,
+                   scenario_path=args.scenario_path, ego_kinds=args.ego_kinds)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")
@@ -103,7 +104,7 @@ def cmd_match(args: argparse.Namespace) -> int:
 def cmd_scenarios(args: argparse.Namespace) -> int:
     from logiq_sql.scenario import list_scenarios
 
-    for s in list_scenarios(include_abstract=args.all):
+    for s in list_scenarios(args.scenario_path, include_abstract=args.all):
         kind = "base scenario" if s.abstract else "scenario"
         print(f"{s.name}  ({kind}; extends {' -> '.join(s.lineage[1:]) or 'nothing'})")
         print(f"    {s.description}")
@@ -122,7 +123,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from logiq_sql.match import render
 
     print(render(args.scenario, _set_pairs(args.set), ego=args.ego, relation_range=args.relation_range,
-                 engine=args.engine))
+                 engine=args.engine, scenario_path=args.scenario_path, ego_kinds=args.ego_kinds))
     return 0
 
 
@@ -130,9 +131,24 @@ def cmd_explain(args: argparse.Namespace) -> int:
     from logiq_sql.explain import explain
 
     result = explain(args.db, args.scenario, args.drive, args.ego, actor=args.actor, overrides=_set_pairs(args.set),
-                     relation_range=args.relation_range)
+                     relation_range=args.relation_range, scenario_path=args.scenario_path,
+                     ego_kinds=args.ego_kinds)
     print(result.text())
     return 0
+
+
+def cmd_lint(args: argparse.Namespace) -> int:
+    from logiq_sql.lint import lint_scenarios
+
+    problems = lint_scenarios(args.scenario or None, args.scenario_path)
+    for problem in problems:
+        print(problem, file=sys.stderr)
+    if problems:
+        print(f"logiq-sql lint: {len(problems)} problem(s); the scenario contract is in docs/scenarios.md",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print("scenarios and their SQL agree: " + (", ".join(args.scenario) if args.scenario else "every scenario"))
+    return EXIT_OK
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -159,6 +175,18 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     print(f"report written to {report(args.db, args.out).resolve()}")
     return EXIT_OK
+
+
+def _scenario_path(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario-path", metavar="DIR",
+                   help="a folder of your own scenario files (and their SQL), besides the built-in ones; they may "
+                        "extend the built-in bases (docs/scenarios.md)")
+
+
+def _ego_kinds(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ego-kinds", metavar="KINDS",
+                   help="the kinds that can be the SUT for --ego auto, all and every:N, comma-separated (default "
+                        "vehicle,truck,bus,motorcycle,emergency_vehicle; car means vehicle)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -222,8 +250,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
     p.add_argument("--scenario", action="append", metavar="NAME", help="scenario to match (repeatable; default all)")
     p.add_argument("--ego", default="auto", metavar="auto|recorded|all|every:N|IDS",
-                   help="who is the SUT: auto (recorded ego, else every vehicle; default), recorded, all, "
-                        "every:N, or actor ids, comma-separated")
+                   help="who is the SUT: auto (recorded ego, else every actor of an ego kind: car, truck, bus, ...; "
+                        "default), recorded, all (every actor of an ego kind), every:N, or actor ids, comma-separated")
+    _ego_kinds(p)
+    _scenario_path(p)
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override a parameter, with its unit (e.g. max_distance_from_cyclist=4m)")
     p.add_argument("--drive", action="append", metavar="ID", help="only these drives (repeatable)")
@@ -247,7 +277,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("scenarios", help="list scenarios with their parameters and defaults", epilog=EPILOG)
     p.add_argument("--all", action="store_true", help="include the base scenarios")
+    _scenario_path(p)
     p.set_defaults(func=cmd_scenarios)
+
+    p = sub.add_parser("lint", help="check scenarios against their SQL, before any data is read", epilog=EPILOG,
+                       description="Load each scenario (every key of every table, with did-you-mean), check the "
+                                   "parameters each SQL file uses, the columns each phase, KPI and sample query "
+                                   "returns against what the scenario declares, and the SQL's portability. "
+                                   "Problems name the file and key; exit 2 when there is any.")
+    p.add_argument("scenario", nargs="*", metavar="SCENARIO", help="scenarios to check (default: all)")
+    _scenario_path(p)
+    p.set_defaults(func=cmd_lint)
 
     p = sub.add_parser("render", help="print the SQL that matches a scenario, with its parameters set",
                        epilog=EPILOG,
@@ -258,6 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", metavar="SCENARIO")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     p.add_argument("--ego", default="auto", help="as for match")
+    _ego_kinds(p)
+    _scenario_path(p)
     p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
     p.add_argument("--engine", choices=["duckdb", "spark"], default="duckdb",
                    help="duckdb (default): SET VARIABLE lines and the statement; spark: the Spark SQL statement with "
@@ -267,14 +309,16 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("explain", help="why a scenario did not match: the first phase and condition that failed",
                        epilog=EPILOG,
                        description="Rerun a scenario's steps for one drive and ego (read-only) and print, for each "
-                                   "actor near the ego, how many phases it got through and, where it stopped, the "
-                                   "conditions of the next phase that failed, with the measured values. For "
-                                   "scenarios whose phases list their conditions (unprotected_left_turn_...).")
+                                   "actor its first phase considers, how many phases it got through and, where it "
+                                   "stopped, the conditions of the next phase that failed, with the measured values, "
+                                   "and where a gap or a flicker of at most max_gap was bridged. Every scenario.")
     p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file written by ingest")
     p.add_argument("--scenario", required=True, metavar="NAME")
     p.add_argument("--drive", required=True, metavar="ID")
     p.add_argument("--ego", required=True, metavar="IDS", help="the ego's actor id(s), comma-separated, or recorded")
     p.add_argument("--actor", metavar="ID", help="only this actor")
+    _ego_kinds(p)
+    _scenario_path(p)
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
     p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH", help="as for match")
     p.set_defaults(func=cmd_explain)

@@ -172,6 +172,11 @@ def _quote(text: str) -> str:
     return "'" + text.replace("'", "''") + "'"
 
 
+def comment_column(con: duckdb.DuckDBPyConnection, table: str, column: str, doc: str) -> None:
+    """Store ``doc`` as the DuckDB comment of ``table.column`` (names are ours, the text is quoted)."""
+    con.execute(f"comment on column {table}.{column} is {_quote(doc)}")
+
+
 def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Column, ...] = ()) -> None:
     columns = (*table.columns, *extra)
     cols = ",\n    ".join(
@@ -310,12 +315,11 @@ def docs_markdown() -> str:
             "in `scenarios/`, in the spec's units (the suffix); NULL where a scenario does not record it or the "
             "value is undefined. Columns are added as scenarios are run.", "",
             "| column | unit | meaning |", "|---|---|---|"]
-    from logiq_sql.match import _metric_columns
     from logiq_sql.scenario import list_scenarios
 
     seen: set[str] = set()
     for s in list_scenarios():
-        for column, (unit, _sql_type, doc) in _metric_columns(s).items():
+        for column, (unit, _sql_type, doc) in s.metric_columns().items():
             if column not in seen:
                 seen.add(column)
                 out.append(f"| `{column}` | {unit} | {doc} |")

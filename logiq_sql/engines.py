@@ -30,7 +30,7 @@ from sqlglot import exp
 
 from logiq_sql import schema
 from logiq_sql.errors import LogiqError
-from logiq_sql.sql import _literal, _used, bind, materialise, query_text
+from logiq_sql.sql import sql_literal, used_values, bind, materialise, query_text
 
 ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
@@ -135,7 +135,7 @@ def spark_text(relative: str) -> str:
     return sqlglot.transpile(query_text(relative), read="duckdb", write="spark", pretty=True)[0]
 
 
-def _spark_type(dtype: pl.DataType | type[pl.DataType]):
+def spark_type(dtype: pl.DataType | type[pl.DataType]):
     from pyspark.sql import types as T
 
     spark_types = {pl.String: T.StringType, pl.Float64: T.DoubleType, pl.Int64: T.LongType, pl.Boolean: T.BooleanType}
@@ -210,7 +210,7 @@ class SparkEngine(Engine):
     def _read_input(self, table: schema.Table) -> None:
         from pyspark.sql import types as T
 
-        struct = T.StructType([T.StructField(c.name, _spark_type(c.dtype), True) for c in table.columns])
+        struct = T.StructType([T.StructField(c.name, spark_type(c.dtype), True) for c in table.columns])
         path = self.folder / table.name
         if any(path.rglob("*.parquet")):
             df = self.spark.read.schema(struct).parquet(str(path)).select(*table.column_names)
@@ -283,7 +283,7 @@ def render_spark_steps(steps: list[tuple[str, str]], values: dict[str, object]) 
 
     ctes = [f"{name} AS (\n{indented(spark_text(rel))}\n)" for name, rel in steps[:-1]]
     text = "WITH\n" + ",\n".join(ctes) + "\nSELECT * FROM (\n" + indented(spark_text(steps[-1][1])) + "\n)"
-    return text, _used(steps, values)
+    return text, used_values(steps, values)
 
 
 def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[str, object]) -> str:
@@ -295,7 +295,7 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
     text, args = render_spark_steps(steps, values)
     header = [f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}, Spark SQL",
               "-- bind the parameters, never format them in:  spark.sql(text, args={...the values below...})"]
-    header += [f"-- :{name} = {_literal(value)}" for name, value in args.items()]
+    header += [f"-- :{name} = {sql_literal(value)}" for name, value in args.items()]
     header += ["-- reads the canonical tables (docs/tables.md) and run_drives (drive_id of the drives to match) as "
                "tables or temp views" + ("; encroachments (shapely) as stored by a match" if s.junctions else "")]
     if s.junctions:

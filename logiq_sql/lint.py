@@ -1,7 +1,10 @@
-"""Portability lint for the SQL tree: constructs that parse in DuckDB but do not run the same elsewhere.
+"""Lint: scenarios against their SQL (``logiq-sql lint``), and the SQL tree's portability.
 
-sqlglot transpiles DuckDB SQL to Spark, but passes some constructs through unchanged or changes their meaning
-(see the team's engine notes). Each rule names the construct and the portable alternative.
+``lint_scenarios`` loads each scenario (every key of every TOML table is checked, with a did-you-mean), checks it
+against its SQL (``logiq_sql.contract``: placeholders, the columns each phase, KPI and sample query returns) and
+lints every query file it runs for portability. Portability: sqlglot transpiles DuckDB SQL to Spark, but passes
+some constructs through unchanged or changes their meaning (see the team's engine notes). Each rule names the
+construct and the portable alternative.
 """
 
 from __future__ import annotations
@@ -75,6 +78,33 @@ def _guarded(div: exp.Div) -> bool:
     return div.find_ancestor(exp.If, exp.Case) is not None
 
 
+def lint_scenarios(names: list[str] | None = None, scenario_path: Path | str | None = None) -> list[str]:
+    """Every problem of the named scenarios (default: every scenario, built-in and in ``scenario_path``), each
+    naming the file and key; empty when they are fine. Nothing reads data."""
+    from logiq_sql.contract import check_scenario
+    from logiq_sql.errors import LogiqError
+    from logiq_sql.plan import scenario_queries
+    from logiq_sql.scenario import load_scenario, scenario_files
+    from logiq_sql.sql import query_text, shown_path
+
+    problems: list[str] = []
+    files = scenario_files(scenario_path)
+    for name in names or list(files):
+        try:
+            s = load_scenario(name, scenario_path)
+        except LogiqError as exc:
+            problems.append(str(exc))
+            continue
+        if s.abstract:
+            continue
+        found = check_scenario(s, scenario_queries(s))
+        problems += found
+        if not found:
+            for rel in dict.fromkeys(scenario_queries(s)):
+                problems += lint_sql(query_text(rel), shown_path(rel))
+    return list(dict.fromkeys(problems))
+
+
 def lint_tree(root: Path | None = None) -> list[str]:
     root = root or data_dir("queries")
     problems: list[str] = []
@@ -101,14 +131,14 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     session (tests/test_spark.py)."""
     from pyspark.sql import types as T
 
-    from logiq_sql.engines import INPUT_TABLES, _spark_type, spark_text
-    from logiq_sql.match import parse_ego, run_values, scenario_steps
+    from logiq_sql.engines import INPUT_TABLES, spark_type, spark_text
+    from logiq_sql.plan import parse_ego, run_values, scenario_steps
     from logiq_sql.scenario import list_scenarios
     from logiq_sql.sql import bind
 
     tables = {t.name: t.polars_schema for t in INPUT_TABLES} | _side_tables()
     for name, columns in tables.items():
-        struct = T.StructType([T.StructField(c, _spark_type(d), True) for c, d in columns.items()])
+        struct = T.StructType([T.StructField(c, spark_type(d), True) for c, d in columns.items()])
         spark.createDataFrame([], struct).createOrReplaceTempView(name)
     runs: list[tuple[str, str, dict[str, object]]] = []
     for s in list_scenarios():

@@ -16,4 +16,6 @@ def data_dir(name: str) -> Path:
 
 
 def query_path(relative: str) -> Path:
-    return data_dir("queries") / relative
+    """A built-in query (``phases/x.sql``), or a user's query file given by its absolute path."""
+    path = Path(relative)
+    return path if path.is_absolute() else data_dir("queries") / relative

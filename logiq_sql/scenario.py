@@ -2,8 +2,13 @@
 
 A scenario file may ``extends`` base scenarios. What it inherits:
 - ``params``: every parameter of every base; the child may redeclare one to change its default.
-- ``kpi_queries``, ``kpis`` and ``coverage``: appended, bases first, each name once.
-- ``phases`` and ``match``: a concrete scenario declares its own.
+- ``kpi_queries``, ``sample_queries``, ``kpis`` and ``coverage``: appended, bases first, each name once.
+- ``phases`` (and the optional ``frames`` step they read): a concrete scenario declares its own.
+
+Every key of every table is checked here, at load (a misspelt key is an error with a did-you-mean); what the
+SQL files use and return is checked against the scenario by ``logiq_sql.contract`` before any data is read.
+A scenario found in a user's folder (``--scenario-path DIR``) names its SQL files relative to its own folder,
+else from the built-in ``queries/``; its bases may be built-in ones.
 
 Parameter values are parsed once, here, into canonical units. SQL reads them as ``$<name><suffix>``
 (``max_distance_from_cyclist`` of type length is ``$max_distance_from_cyclist_m``); ``kinds`` is
@@ -20,15 +25,23 @@ from pathlib import Path
 
 from logiq_sql import units
 from logiq_sql.errors import ScenarioError, did_you_mean
-from logiq_sql.paths import data_dir
+from logiq_sql.paths import data_dir, query_path
 from logiq_sql.schema import OBJECT_KINDS, VEHICLE_KINDS
 
 PARAM_TYPES = (*units.DIMENSIONS, "kinds")
+MAX_PHASES = 4  # match/phase_runs.sql reads phase_1 .. phase_4
 _PARAM_KEYS = {"type", "default", "description"}
 _TOP_KEYS = {
     "name", "description", "spec", "version", "abstract", "extends", "actors", "params", "phases",
-    "match", "kpi_queries", "kpis", "coverage", "junctions",
+    "frames", "kpi_queries", "sample_queries", "kpis", "coverage", "junctions",
 }
+_PHASE_KEYS = {"name", "description", "query", "min_duration", "max_duration", "conditions"}
+_CONDITION_KEYS = {"name", "value", "test"}
+_KPI_KEYS = {"name", "column", "unit", "type", "description"}
+_COVERAGE_KEYS = {"name", "column", "unit", "sample", "description", "range", "every", "values"}
+KPI_TYPES = ("number", "text")
+# KPI units whose values are text; any other unit must be a unit of logiq_sql.units or declare `type`
+TEXT_UNITS = ("string", "evaluation_object_kind")
 
 
 @dataclass(frozen=True)
@@ -65,11 +78,11 @@ class Condition:
 
 @dataclass(frozen=True)
 class Phase:
-    """A phase: its query (or, for scenarios with a ``[match] frames`` query, the conditions of that query
-    that make it hold), and the names of the time parameters that limit its duration (if any)."""
+    """A phase: its query of per-frame conditions (the phase contract, docs/scenarios.md), the conditions
+    ``explain`` reports, and the names of the time parameters that limit its duration (if any)."""
 
     name: str
-    query: str | None
+    query: str
     min_duration: str | None = None
     max_duration: str | None = None
     conditions: tuple[Condition, ...] = ()
@@ -81,6 +94,7 @@ class Kpi:
     column: str
     unit: str
     description: str
+    type: str = "number"  # number (stored as double) or text (varchar)
 
 
 @dataclass(frozen=True)
@@ -110,10 +124,10 @@ class Scenario:
     actors: dict[str, str]
     params: dict[str, Param]
     phases: tuple[Phase, ...]
-    match_query: str | None
-    frames_query: str | None  # one query giving every phase's per-frame conditions (phase_1 .. phase_n)
+    frames_query: str | None  # an optional step (table scenario_frames) that the phase queries read
     junctions: bool  # the scenario needs the junction steps (queries/junctions/)
     kpi_queries: tuple[str, ...]
+    sample_queries: tuple[str, ...]  # one row per (match_id, sample): values at each sampling event
     kpis: tuple[Kpi, ...]
     coverage: tuple[CoverageItem, ...]
     overrides: dict[str, str] = field(default_factory=dict)
@@ -135,6 +149,16 @@ class Scenario:
             params[name] = replace(p, text=text, value=_parse_value(p.type, text, f"{where} {name}={text}"))
         return replace(self, params=params, overrides={**self.overrides, **values})
 
+    def metric_columns(self) -> dict[str, tuple[str, str, str]]:
+        """Columns of ``kpis`` for this scenario: its KPIs, then its coverage samples -> (unit, SQL type,
+        description)."""
+        out = {k.column: (k.unit, "varchar" if k.type == "text" else "double",
+                          f"{k.name} ({k.unit}): {k.description}") for k in self.kpis}
+        for c in self.coverage:
+            out.setdefault(c.column, (c.unit, "varchar" if c.values else "double",
+                                      f"coverage item {c.name} ({c.unit}), sampled at the {c.sample}: {c.description}"))
+        return out
+
     def params_hash(self) -> str:
         """Short digest of the scenario version and every bound value: same hash, same matches."""
         payload = json.dumps({"v": self.version, "p": self.bindings()}, sort_keys=True)
@@ -154,9 +178,34 @@ def _parse_value(type_: str, text: object, where: str) -> float | tuple[str, ...
     return units.parse(text, type_, where)  # type: ignore[arg-type]
 
 
-def scenario_files(directory: Path | None = None) -> dict[str, Path]:
-    directory = directory or data_dir("scenarios")
-    return {p.stem: p for p in sorted(directory.glob("*.toml"))}
+ScenarioPath = Path | str | None  # a user's folder of scenarios (and their SQL), searched before the built-in one
+
+
+def scenario_files(directory: ScenarioPath = None) -> dict[str, Path]:
+    """Scenario name -> file: the built-in ``scenarios/``, then the user's folder (whose files win on a name
+    they share)."""
+    files = {p.stem: p for p in sorted(data_dir("scenarios").glob("*.toml"))}
+    if directory is not None:
+        folder = Path(directory)
+        if not folder.is_dir():
+            raise ScenarioError(f"--scenario-path {folder}: no such folder.")
+        files.update({p.stem: p for p in sorted(folder.glob("*.toml"))})
+    return files
+
+
+def _check_keys(table: dict, allowed: set[str], where: str) -> None:
+    if not isinstance(table, dict):
+        raise ScenarioError(f"{where}: must be a table, not {table!r}.")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key '{unknown[0]}'.{did_you_mean(unknown[0], sorted(allowed))}"
+                            f"\n\nHint: the keys here are {', '.join(sorted(allowed))} (docs/scenarios.md).")
+
+
+def _required(table: dict, key: str, where: str) -> object:
+    if key not in table:
+        raise ScenarioError(f"{where}: missing key '{key}' (docs/scenarios.md).")
+    return table[key]
 
 
 def _read(path: Path) -> dict:
@@ -164,17 +213,28 @@ def _read(path: Path) -> dict:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc}).") from None
-    unknown = set(raw) - _TOP_KEYS
-    if unknown:
-        key = sorted(unknown)[0]
-        raise ScenarioError(f"{path}: unknown key '{key}'.{did_you_mean(key, sorted(_TOP_KEYS))}")
+    _check_keys(raw, _TOP_KEYS, str(path))
     if raw.get("name") != path.stem:
         raise ScenarioError(f"{path}: name = {raw.get('name')!r} must equal the file name '{path.stem}'.")
     return raw
 
 
-def load_scenario(name_or_path: str | Path, directory: Path | None = None) -> Scenario:
-    """Load a scenario by name (from ``scenarios/``) or path, resolving its bases.
+def _query_ref(path: Path, relative: str, where: str) -> str:
+    """A query named in ``path``: beside the scenario file when it is there (a user's folder, as an absolute
+    path), else in the built-in ``queries/``."""
+    if not isinstance(relative, str) or not relative.endswith(".sql"):
+        raise ScenarioError(f"{where}: {relative!r} must name a .sql file.")
+    own = path.parent / relative
+    if path.parent != data_dir("scenarios") and own.is_file():
+        return str(own.resolve())
+    if not query_path(relative).is_file():
+        raise ScenarioError(f"{where}: query file {relative} not found beside {path.name} or in the built-in "
+                            "queries/ folder.")
+    return relative
+
+
+def load_scenario(name_or_path: str | Path, directory: ScenarioPath = None) -> Scenario:
+    """Load a scenario by name (from ``scenarios/`` and the user's ``directory``) or path, resolving its bases.
 
     Raises:
         ScenarioError: unknown scenario or base, inheritance cycle, unknown key, bad parameter type or unit.
@@ -202,22 +262,21 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
 
     params: dict[str, Param] = {}
     kpi_queries: list[str] = []
+    sample_queries: list[str] = []
     kpis: dict[str, Kpi] = {}
     coverage: dict[str, CoverageItem] = {}
     lineage: list[str] = [name]
     for base in bases:
         params.update(base.params)
         kpi_queries += [q for q in base.kpi_queries if q not in kpi_queries]
+        sample_queries += [q for q in base.sample_queries if q not in sample_queries]
         kpis.update({k.name: k for k in base.kpis})
         coverage.update({c.name: c for c in base.coverage})
         lineage += [b for b in base.lineage if b not in lineage]
 
     for pname, spec in raw.get("params", {}).items():
         where = f"{path} [params.{pname}]"
-        unknown = sorted(set(spec) - _PARAM_KEYS)  # a misspelt key would silently leave the default unset
-        if unknown:
-            raise ScenarioError(f"{where}: unknown key '{unknown[0]}'.{did_you_mean(unknown[0], sorted(_PARAM_KEYS))}"
-                                f"\n\nHint: a parameter has {', '.join(sorted(_PARAM_KEYS))}.")
+        _check_keys(spec, _PARAM_KEYS, where)  # a misspelt key would silently leave the default unset
         type_ = spec.get("type")
         if type_ not in PARAM_TYPES:
             raise ScenarioError(f"{where}: type {type_!r} is not one of {', '.join(PARAM_TYPES)}.")
@@ -225,39 +284,76 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         value = None if default is None else _parse_value(type_, default, f"{where} default")
         params[pname] = Param(pname, type_, None if default is None else str(default), value,
                               spec.get("description", ""), name)
-    kpi_queries += [q for q in raw.get("kpi_queries", []) if q not in kpi_queries]
+    for key in ("kpi_queries", "sample_queries"):
+        own = [_query_ref(path, q, f"{path} {key}") for q in raw.get(key, [])]
+        target = kpi_queries if key == "kpi_queries" else sample_queries
+        target += [q for q in own if q not in target]
     for k in raw.get("kpis", []):
-        kpis[k["name"]] = Kpi(k["name"], k["column"], k.get("unit", ""), k.get("description", ""))
+        kpi = _kpi(k, f"{path} [[kpis]] {_entry_name(k)}")
+        kpis[kpi.name] = kpi
     for c in raw.get("coverage", []):
-        coverage[c["name"]] = _coverage_item(c, f"{path} [[coverage]] {c.get('name')}")
+        where = f"{path} [[coverage]] {_entry_name(c)}"
+        _check_keys(c, _COVERAGE_KEYS, where)
+        coverage[_required(c, "name", where)] = _coverage_item(c, where)
 
-    phases = tuple(_phase(p, params, f"{path} [[phases]] {p.get('name')}") for p in raw.get("phases", []))
+    phases = tuple(_phase(p, params, path, f"{path} [[phases]] {_entry_name(p)}") for p in raw.get("phases", []))
     abstract = bool(raw.get("abstract", False))
-    match = raw.get("match", {}).get("query")
-    frames = raw.get("match", {}).get("frames")
-    if not abstract and (not phases or not match):
-        raise ScenarioError(f"{path}: a concrete scenario needs [[phases]] and [match] query.")
-    for phase in phases:
-        if (phase.query is None) == (frames is None):
-            raise ScenarioError(f"{path}: phase {phase.name} needs a query, unless [match] frames gives the "
-                                "conditions of every phase (then no phase has its own query).")
-    if frames and (len(phases) > 4 or any(p.min_duration or p.max_duration for p in phases)):
-        raise ScenarioError(f"{path}: a scenario matched from [match] frames has at most 4 phases and no phase "
-                            "duration limits (queries/match/sequential.sql).")
+    frames = raw.get("frames")
+    if frames is not None:
+        frames = _query_ref(path, frames, f"{path} frames")
+    if not abstract and not phases:
+        raise ScenarioError(f"{path}: a concrete scenario needs [[phases]] (docs/scenarios.md).")
+    if len(phases) > MAX_PHASES:
+        raise ScenarioError(f"{path}: {len(phases)} phases; a scenario has at most {MAX_PHASES} "
+                            "(queries/match/phase_runs.sql).")
+    names = [p.name for p in phases]
+    if len(set(names)) != len(names):
+        raise ScenarioError(f"{path}: two [[phases]] share a name; each phase needs its own.")
     if not abstract:
         _check_samples(coverage.values(), phases, path)
     return Scenario(
         name=name, path=path, description=raw.get("description", ""), spec=raw.get("spec", ""),
         version=int(raw.get("version", 1)), abstract=abstract, lineage=tuple(lineage),
-        actors=dict(raw.get("actors", {})), params=params, phases=phases, match_query=match, frames_query=frames,
+        actors=dict(raw.get("actors", {})), params=params, phases=phases, frames_query=frames,
         junctions=bool(raw.get("junctions", False)),
-        kpi_queries=tuple(kpi_queries), kpis=tuple(kpis.values()), coverage=tuple(coverage.values()),
+        kpi_queries=tuple(kpi_queries), sample_queries=tuple(sample_queries), kpis=tuple(kpis.values()),
+        coverage=tuple(coverage.values()),
     )
 
 
-def _phase(p: dict, params: dict[str, Param], where: str) -> Phase:
-    conditions = tuple(Condition(c["name"], c["value"], c["test"]) for c in p.get("conditions", []))
-    phase = Phase(p["name"], p.get("query"), p.get("min_duration"), p.get("max_duration"), conditions)
+def _entry_name(entry: object) -> str:
+    """How an entry of an array of tables is named in messages: its name, else what it is."""
+    return str(entry.get("name")) if isinstance(entry, dict) else repr(entry)
+
+
+def _kpi(k: dict, where: str) -> Kpi:
+    _check_keys(k, _KPI_KEYS, where)
+    unit = k.get("unit", "")
+    type_ = k.get("type")
+    if type_ is None:
+        if unit in TEXT_UNITS:
+            type_ = "text"
+        elif unit in units.UNITS or unit in ("", "mpsps"):
+            type_ = "number"
+        else:
+            raise ScenarioError(f"{where}: unit {unit!r} is neither a unit of measure nor text; declare "
+                                f"type = \"number\" or \"text\".")
+    if type_ not in KPI_TYPES:
+        raise ScenarioError(f"{where}: type {type_!r} is not one of {', '.join(KPI_TYPES)}."
+                            f"{did_you_mean(str(type_), KPI_TYPES)}")
+    return Kpi(_required(k, "name", where), _required(k, "column", where), unit, k.get("description", ""), type_)
+
+
+def _phase(p: dict, params: dict[str, Param], path: Path, where: str) -> Phase:
+    _check_keys(p, _PHASE_KEYS, where)
+    conditions = []
+    for c in p.get("conditions", []):
+        _check_keys(c, _CONDITION_KEYS, f"{where} conditions")
+        conditions.append(Condition(_required(c, "name", f"{where} conditions"),
+                                    _required(c, "value", f"{where} conditions"), c.get("test", "")))
+    query = _query_ref(path, _required(p, "query", where), f"{where} query")
+    phase = Phase(_required(p, "name", where), query, p.get("min_duration"), p.get("max_duration"),
+                  tuple(conditions))
     for limit in (phase.min_duration, phase.max_duration):
         if limit is not None and (limit not in params or params[limit].type != "time"):
             raise ScenarioError(f"{where}: duration limit '{limit}' must name a time parameter of the scenario."
@@ -275,6 +371,7 @@ def _check_samples(items, phases: tuple[Phase, ...], path: Path) -> None:
 
 
 def _coverage_item(c: dict, where: str) -> CoverageItem:
+    _required(c, "column", where)
     sample = c.get("sample", "end")
     if sample.rpartition(".")[2] not in ("start", "end"):
         raise ScenarioError(f"{where}: sample must be 'start', 'end', '<phase>.start' or '<phase>.end', "
@@ -282,6 +379,8 @@ def _coverage_item(c: dict, where: str) -> CoverageItem:
     if "values" in c:
         return CoverageItem(c["name"], c["column"], c.get("unit", ""), c.get("description", ""), sample,
                             values=tuple(c["values"]))
+    if "range" not in c or "every" not in c:
+        raise ScenarioError(f"{where}: a numeric item needs range = [lo, hi] and every (an enum item: values).")
     lo, hi = c["range"]
     every = float(c["every"])
     if not (hi > lo and every > 0):
@@ -290,6 +389,6 @@ def _coverage_item(c: dict, where: str) -> CoverageItem:
                         float(lo), float(hi), every)
 
 
-def list_scenarios(directory: Path | None = None, include_abstract: bool = False) -> list[Scenario]:
+def list_scenarios(directory: ScenarioPath = None, include_abstract: bool = False) -> list[Scenario]:
     out = [load_scenario(n, directory) for n in scenario_files(directory)]
     return [s for s in out if include_abstract or not s.abstract]

@@ -16,11 +16,16 @@ from logiq_sql.paths import query_path
 _UNIT_CONSTANT = re.compile(r"^([a-z0-9]+)_per_([a-z0-9]+)$")
 
 
+def shown_path(relative: str) -> str:
+    """A query as people know it: ``queries/<relative>`` for a built-in one, the path of a user's file."""
+    return relative if relative.startswith("/") else f"queries/{relative}"
+
+
 @functools.cache
 def query_text(relative: str) -> str:
     path = query_path(relative)
     if not path.is_file():
-        raise ScenarioError(f"query file queries/{relative} not found.")
+        raise ScenarioError(f"query file {shown_path(relative)} not found.")
     return path.read_text()
 
 
@@ -51,7 +56,7 @@ def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
         elif (const := unit_constant(name)) is not None:
             out[name] = const
         else:
-            raise ScenarioError(f"queries/{relative} uses ${name}, which no scenario parameter provides.")
+            raise ScenarioError(f"{shown_path(relative)} uses ${name}, which no scenario parameter provides.")
     return out
 
 
@@ -66,7 +71,7 @@ def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:
     con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
 
 
-def _literal(value: object) -> str:
+def sql_literal(value: object) -> str:
     if isinstance(value, str):
         return "'" + value.replace("'", "''") + "'"
     if value is None:
@@ -74,7 +79,7 @@ def _literal(value: object) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
-def _used(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
+def used_values(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
     used: dict[str, object] = {}
     for _, rel in steps:
         used.update(bind(rel, values))
@@ -84,7 +89,7 @@ def _used(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, 
 def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
     """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
     the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
-    lines = [f"set variable {name} = {_literal(v)};" for name, v in _used(steps, values).items()]
+    lines = [f"set variable {name} = {sql_literal(v)};" for name, v in used_values(steps, values).items()]
     ctes = []
     for name, rel in steps[:-1]:
         body = "\n".join("    " + line if line else "" for line in query_text(rel).rstrip().splitlines())

@@ -18,7 +18,8 @@ import polars as pl
 import shapely
 
 from logiq_sql.ingestion import ingest
-from logiq_sql.match import parse_ego, phase_steps, prepare_relations, run_values
+from logiq_sql.plan import parse_ego, phase_steps, run_values
+from logiq_sql.runner import prepare_relations
 from logiq_sql.scenario import load_scenario
 from logiq_sql.sql import materialise
 
@@ -106,16 +107,22 @@ def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | None = 
 
 def left_turn_frames(db: Path, ego: str = "auto", drives: list[str] | None = None,
                      tables: tuple[str, ...] = ("phase_frames",)) -> dict[str, pl.DataFrame]:
-    """The left turn's per-frame phase conditions (and any other step table named in ``tables``), computed
-    read-only from an ingested file the way match() computes them."""
+    """The left turn's per-frame conditions (and any other step table named in ``tables``), computed read-only
+    from an ingested file the way match() computes them. ``phase_frames`` is the frames step with each phase
+    query's ``holds`` as phase_1 .. phase_4."""
     import duckdb
 
     s = load_scenario(LEFT_TURN)
+    keys = "drive_id, ego_id, ego_passage, actor_id, actor_passage, frame"
     with duckdb.connect(str(db), read_only=True) as con:
         run = con.sql("select drive_id from drive_inputs").pl()
         con.register("run_drives", run if drives is None else run.filter(pl.col("drive_id").is_in(drives)))
         values = run_values(s, parse_ego(ego), 200.0)
         prepare_relations(con, [s], values)
-        table, rel = phase_steps(s)[0]
-        materialise(con, table, rel, values)
+        for table, rel in phase_steps(s)[:1 + len(s.phases)]:  # the frames step and the phase queries
+            materialise(con, table, rel, values)
+        con.execute("create temp table phase_frames as select f.*, "
+                    + ", ".join(f"p{i}.holds as phase_{i}" for i in range(1, 5))
+                    + " from scenario_frames as f "
+                    + " ".join(f"join phase_{i} as p{i} using ({keys})" for i in range(1, 5)))
         return {t: con.sql(f"select * from {t}").pl() for t in tables}

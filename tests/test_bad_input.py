@@ -49,12 +49,13 @@ def write(folder: Path, tracks: pl.DataFrame, dt: float | None = 0.1, lanes: lis
     return folder
 
 
-def run(tmp: Path, tracks: pl.DataFrame, dt: float | None = 0.1,
-        lanes: list[dict] = TWO_LANES) -> tuple[dict[str, dict], pl.DataFrame]:
-    """Ingest and match follower_vehicle: (drives by id, matches)."""
+def run(tmp: Path, tracks: pl.DataFrame, dt: float | None = 0.1, lanes: list[dict] = TWO_LANES,
+        max_gap: str = "0s") -> tuple[dict[str, dict], pl.DataFrame]:
+    """Ingest and match follower_vehicle: (drives by id, matches). With max_gap = 0 (the default here) every
+    missing frame shows as a split phase, which is what these tests look at."""
     db = tmp / "x.duckdb"
     ingest("parquet", [write(tmp / "in", tracks, dt, lanes)], db)
-    result = match(db, scenarios=["follower_vehicle"], ego="recorded")
+    result = match(db, scenarios=["follower_vehicle"], ego="recorded", overrides={"max_gap": max_gap})
     return {r["drive_id"]: r for r in result.drives.iter_rows(named=True)}, result.matches
 
 
@@ -230,12 +231,14 @@ def test_contradicting_rows_at_one_timestamp_are_all_dropped(tmp_path):
 
 
 @pytest.mark.parametrize("who", ["a", "ego"])
-def test_a_dropped_frame_splits_the_phase(tmp_path, who):
+def test_a_dropped_frame_is_missing_and_bridged_up_to_max_gap(tmp_path, who):
     tracks = scene().filter(~((pl.col("actor_id") == who) & (pl.col("t_s") == 3.0)))
-    drives, matches = run(tmp_path, tracks)
+    drives, matches = run(tmp_path / "a", tracks)
     assert drives["d1"]["rows_rejected"] == 0
-    assert spans(matches) == [(0, 29), (31, 50)]
+    assert spans(matches) == [(0, 29), (31, 50)]  # with max_gap = 0 it splits the phase
     assert matches.sort("start_frame")["end_s"].to_list()[0] == pytest.approx(2.9)
+    _, bridged = run(tmp_path / "b", tracks, max_gap="0.5s")  # the default: a missed detection is bridged
+    assert spans(bridged) == [(0, 50)]
 
 
 def test_dropped_frames_shorter_than_the_minimum_leave_no_match(tmp_path):
@@ -473,14 +476,13 @@ def test_an_unknown_key_in_a_parameter_of_a_scenario_file(tmp_path):
     with pytest.raises(ScenarioError) as e:
         load_scenario("a", tmp_path)
     assert str(e.value) == (f"{tmp_path / 'a.toml'} [params.gap]: unknown key 'defualt'. Did you mean 'default'?\n\n"
-                            "Hint: a parameter has default, description, type.")
+                            "Hint: the keys here are default, description, type (docs/scenarios.md).")
 
 
 def test_a_phase_limit_naming_an_unknown_parameter(tmp_path):
     (tmp_path / "a.toml").write_text(
         'name = "a"\n[params.max_len]\ntype = "time"\ndefault = "3s"\n'
-        '[[phases]]\nname = "p"\nquery = "phases/follower_vehicle.sql"\nmax_duration = "max_lenght"\n'
-        '[match]\nquery = "match/single_phase.sql"\n')
+        '[[phases]]\nname = "p"\nquery = "phases/follower_vehicle.sql"\nmax_duration = "max_lenght"\n')
     with pytest.raises(ScenarioError) as e:
         load_scenario("a", tmp_path)
     assert str(e.value) == (f"{tmp_path / 'a.toml'} [[phases]] p: duration limit 'max_lenght' must name a time "

@@ -71,7 +71,8 @@ def test_unknown_key_in_a_scenario_file(tmp_path):
     (tmp_path / "a.toml").write_text('name = "a"\nabstract = true\nparameters = {}\n')
     with pytest.raises(ScenarioError) as e:
         load_scenario("a", tmp_path)
-    assert message(e) == f"{tmp_path / 'a.toml'}: unknown key 'parameters'. Did you mean 'params'?"
+    assert message(e).startswith(f"{tmp_path / 'a.toml'}: unknown key 'parameters'. Did you mean 'params'?\n\n"
+                                 "Hint: the keys here are abstract, actors, coverage, description, extends, frames")
 
 
 def test_parameter_with_a_bad_default(tmp_path):

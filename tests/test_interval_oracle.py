@@ -1,7 +1,7 @@
 """The phase SQL against a brute-force Python oracle on random per-frame conditions.
 
 The follower sits either at a headway inside [0 s, 5 s] or far outside it, frame by frame, and some of its
-frames are missing; the oracle walks the frames one by one.
+frames are missing; the oracle walks the frames one by one, bridging interruptions of at most max_gap.
 """
 
 from __future__ import annotations
@@ -19,20 +19,27 @@ from tests.helpers import Y1, intervals, make_db
 DT = 0.1
 
 
-def oracle_islands(frames_ok: list[bool], min_s: float | None, max_s: float | None) -> list[tuple[float, float]]:
-    out, start = [], None
-    for i, ok in enumerate([*frames_ok, False]):
-        if ok and start is None:
-            start = i
-        if not ok and start is not None:
-            end = i - 1
-            if max_s is not None:  # consecutive pieces spanning at most max_s
-                span = math.floor(max_s / DT + 1e-9) + 1
-                for a in range(start, end + 1, span):
-                    out.append((a, min(a + span - 1, end)))
-            elif (end - start) * DT >= min_s - 1e-9:
-                out.append((start, end))
-            start = None
+def oracle_islands(frames_ok: list[bool], min_s: float | None, max_s: float | None,
+                   max_gap_s: float = 0.0) -> list[tuple[float, float]]:
+    gap = math.floor(max_gap_s / DT + 1e-9)  # frames of interruption bridged
+    runs: list[list[int]] = []
+    for i, ok in enumerate(frames_ok):
+        if not ok:
+            continue
+        if runs and i - runs[-1][1] - 1 <= gap:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    out = []
+    for start, end in runs:
+        if (end - start) * DT < max_gap_s - 1e-6:  # shorter than max_gap: jitter, not an episode
+            continue
+        if max_s is not None:  # consecutive pieces spanning at most max_s
+            span = math.floor(max_s / DT + 1e-9) + 1
+            for a in range(start, end + 1, span):
+                out.append((a, min(a + span - 1, end)))
+        elif (end - start) * DT >= min_s - 1e-9:
+            out.append((start, end))
     return [(round(a * DT, 3), round(b * DT, 3)) for a, b in out]
 
 
@@ -57,32 +64,33 @@ FRAMES = st.integers(min_value=2, max_value=60).flatmap(
                             lambda xs: [x or (i % 7 != 3) for i, x in enumerate(xs)])))
 
 
-def matched_vs_oracle(tmp, frames, scenario, tracks_args, override, min_s, max_s):
+def matched_vs_oracle(tmp, frames, scenario, tracks_args, override, min_s, max_s, max_gap_s):
     """(intervals the SQL found, intervals the oracle expects) for one random case."""
     ok, present = frames
     db = make_db(tmp, drive(ok, present, *tracks_args))
-    got = intervals(match(db, scenarios=[scenario], ego="recorded", overrides=override).matches, scenario)
-    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=True)], min_s, max_s)
+    got = intervals(match(db, scenarios=[scenario], ego="recorded",
+                          overrides={**override, "max_gap": f"{max_gap_s}s"}).matches, scenario)
+    expected = oracle_islands([o and p for o, p in zip(ok, present, strict=True)], min_s, max_s, max_gap_s)
     return [(a, b) for _, _, a, b in got], expected
 
 
 @settings(max_examples=25, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(frames=FRAMES, min_s=st.sampled_from([0.0, 0.5, 1.0, 2.0]))
-def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s):
+@given(frames=FRAMES, min_s=st.sampled_from([0.0, 0.5, 1.0, 2.0]), max_gap_s=st.sampled_from([0.0, 0.2, 0.5]))
+def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s, max_gap_s):
     # centre offset 20 m -> gap 15.5 m -> 1.55 s; 90 m -> gap 85.5 m -> 8.55 s (outside [0, 5] s)
     got, expected = matched_vs_oracle(tmp_path_factory.mktemp("f"), frames, "follower_vehicle",
                                       ("vehicle", 20.0, 90.0, False), {"min_scenario_duration": f"{min_s}s"},
-                                      min_s, None)
+                                      min_s, None, max_gap_s)
     assert got == expected
 
 
 @settings(max_examples=25, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(frames=FRAMES, max_s=st.sampled_from([0.3, 1.0, 2.55]))
-def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s):
+@given(frames=FRAMES, max_s=st.sampled_from([0.3, 1.0, 2.55]), max_gap_s=st.sampled_from([0.0, 0.3]))
+def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s, max_gap_s):
     # lateral centre offset 4 m -> box gap 2.2 m (inside [0, 5] m); 12 m -> 10.2 m (outside)
     got, expected = matched_vs_oracle(tmp_path_factory.mktemp("c"), frames, "cyclist_close_to_moving_sut",
                                       ("cyclist", 4.0, 12.0, True), {"max_phase_duration": f"{max_s}s"},
-                                      None, max_s)
+                                      None, max_s, max_gap_s)
     assert got == expected

@@ -143,16 +143,18 @@ def test_pet_is_null_when_both_boxes_are_in_the_area_at_once(tmp_path):
     assert frames["pet_s"].is_null().all() and not frames["ego_yields"].any()
 
 
-def _chain(islands: list[tuple[int, int, int]], phase_count: int) -> list[tuple]:
-    """Run match/chain.sql and match/sequential.sql on hand-written phase islands (phase, start, end)."""
+def _chain(islands: list[tuple[int, int, int]], phase_count: int, max_gap_frames: int = 0) -> list[tuple]:
+    """Run match/chain.sql and match/sequential.sql on hand-written phase runs (phase, start, end)."""
     from logiq_sql.sql import materialise
     con = duckdb.connect()
-    con.register("phase_islands", pl.DataFrame(
-        [(k, "d", "e", "a", s, e) for k, s, e in islands], orient="row",
-        schema=["phase_index", "drive_id", "ego_id", "actor_id", "start_frame", "end_frame"]))
+    con.register("phase_runs", pl.DataFrame(
+        [(k, "d", "e", "a", s, e, max_gap_frames) for k, s, e in islands], orient="row",
+        schema=["phase_index", "drive_id", "ego_id", "actor_id", "start_frame", "end_frame", "max_gap_frames"]))
     con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": range(200),
                                          "t_s": [f / 10 for f in range(200)]}))
-    values = {"phase_count": phase_count}
+    con.register("drive_inputs", pl.DataFrame({"drive_id": ["d"], "dt_s": [0.1]}))
+    values = {"phase_count": phase_count, "max_gap_s": 0.0, **{f"phase_{i}_min_duration_s": 0.0 for i in range(1, 5)},
+              **{f"phase_{i}_max_duration_s": None for i in range(1, 5)}}
     materialise(con, "chain", "match/chain.sql", values)
     materialise(con, "scenario_match", "match/sequential.sql", values)
     cols = [f"p{i}_{c}" for i in range(1, phase_count + 1) for c in ("start_frame", "end_frame")]
@@ -168,9 +170,12 @@ def test_chain_transitions():
     assert _chain([(1, 10, 20), (2, 5, 20)], 2) == [(10, 10, 11, 20)]
     # one that has ended before the current phase began does not
     assert _chain([(1, 10, 20), (2, 5, 10)], 2) == []
-    # a gap between the phases breaks the chain; adjacency is enough
+    # a gap between the phases longer than max_gap breaks the chain; adjacency is enough
     assert _chain([(1, 10, 20), (2, 22, 30)], 2) == []
     assert _chain([(1, 10, 20), (2, 21, 30)], 2) == [(10, 20, 21, 30)]
+    # a gap of at most max_gap (here 3 frames) is bridged: its frames count to the phase before
+    assert _chain([(1, 10, 20), (2, 24, 30)], 2, max_gap_frames=3) == [(10, 23, 24, 30)]
+    assert _chain([(1, 10, 20), (2, 25, 30)], 2, max_gap_frames=3) == []
     # three phases, both kinds of transition, and a second phase-1 island that leads nowhere
     assert _chain([(1, 10, 20), (1, 50, 55), (2, 12, 30), (3, 0, 60)], 3) == [(10, 11, 12, 30, 31, 60)]
 
@@ -195,5 +200,5 @@ def test_explain_through_the_cli_and_its_errors(base, capsys):
     assert "ego ego, actor car: 4 of 4 phases -- matched" in capsys.readouterr().out
     with pytest.raises(Exception, match="no such drive"):
         explain(path, SCENARIO, "nope", "ego")
-    with pytest.raises(Exception, match="explain covers scenarios whose phases list their conditions"):
-        explain(path, "follower_vehicle", "j1", "ego")
+    # every scenario explains: the follower scenario on this file has no follower, and says so per pair
+    assert "follower_vehicle could not begin" in explain(path, "follower_vehicle", "j1", "ego").text()

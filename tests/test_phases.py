@@ -163,9 +163,28 @@ def test_long_cyclist_episode_is_cut_into_pieces_of_max_phase_duration(tmp_path)
     assert run(db, CYCLIST, overrides={"max_phase_duration": "20s"}) == [("ego", "c", 0.0, 12.0)]
 
 
-def test_dropped_frames_split_a_phase(tmp_path):
+def test_a_gap_of_at_most_max_gap_is_bridged_a_longer_one_splits_the_phase(tmp_path):
     t = times(6.0)
-    keep = (t < 2.0) | (t > 2.25)  # frames 20, 21, 22 are missing for the follower
-    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
-                            actor("f", t[keep], 80 + 10 * t[keep], Y1)])
-    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 1.9), ("ego", "f", 2.3, 6.0)]
+    keep = (t < 2.0) | (t > 2.25)  # frames 20, 21, 22 (0.3 s) are missing for the follower: a missed detection
+    db = make_db(tmp_path / "a", [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                                  actor("f", t[keep], 80 + 10 * t[keep], Y1)])
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 6.0)]  # max_gap 0.5 s bridges it
+    assert run(db, FOLLOWER, overrides={"max_gap": "0s"}) == [("ego", "f", 0.0, 1.9), ("ego", "f", 2.3, 6.0)]
+    assert run(db, FOLLOWER, overrides={"max_gap": "0.2s"}) == [("ego", "f", 0.0, 1.9), ("ego", "f", 2.3, 6.0)]
+    assert run(db, FOLLOWER, overrides={"max_gap": "0.3s"}) == [("ego", "f", 0.0, 6.0)]
+    longer = (t < 2.0) | (t > 2.55)  # 0.6 s missing: the follower was lost, two episodes
+    db = make_db(tmp_path / "b", [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                                  actor("f", t[longer], 80 + 10 * t[longer], Y1)])
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 1.9), ("ego", "f", 2.6, 6.0)]
+
+
+def test_a_condition_flickering_false_for_at_most_max_gap_is_bridged(tmp_path):
+    """A measurement glitch: the follower's position jumps 41 m back on frames 30 and 31. Its speed, derived
+    from positions, is negative on frames 29 and 30, so its headway is undefined there and the phase's condition
+    is false for 0.2 s; max_gap bridges it, max_gap = 0 splits the phase there."""
+    t = times(6.0)
+    x = 80 + 10 * t
+    x[30:32] -= 41.0
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("f", t, x, Y1)])
+    assert run(db, FOLLOWER) == [("ego", "f", 0.0, 6.0)]
+    assert run(db, FOLLOWER, overrides={"max_gap": "0s"}) == [("ego", "f", 0.0, 2.8), ("ego", "f", 3.1, 6.0)]

@@ -1,9 +1,9 @@
 """Property tests of the interval SQL against brute-force Python oracles, on hypothesis-generated inputs.
 
-The query files run as they are in DuckDB (queries/match/phase_islands.sql, queries/match/two_phases.sql,
-queries/coverage/histogram.sql); each oracle walks frames or samples one by one. Derandomised, so CI sees the
-same examples on every run. (tests/test_interval_oracle.py checks whole scenarios, duration limits included,
-the same way through ingest and match.)
+The query files run as they are in DuckDB (queries/match/phase_runs.sql, queries/match/chain.sql with
+queries/match/sequential.sql, queries/coverage/histogram.sql); each oracle walks frames or samples one by one.
+Derandomised, so CI sees the same examples on every run. (tests/test_interval_oracle.py checks whole scenarios,
+duration limits included, the same way through ingest and match.)
 """
 
 from __future__ import annotations
@@ -16,11 +16,13 @@ import polars as pl
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from logiq_sql.match import _coverage_buckets
+from logiq_sql.runner import coverage_buckets
 from logiq_sql.sql import materialise
 
 DT = 0.1
 PROFILE = settings(max_examples=60, deadline=None, derandomize=True)
+PHASE_SCHEMA = {"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
+                "t_s": pl.Float64, "segment": pl.Int64, "holds": pl.Boolean}
 
 
 def run(query: str, inputs: dict[str, pl.DataFrame], values: dict[str, object] | None = None) -> pl.DataFrame:
@@ -32,67 +34,86 @@ def run(query: str, inputs: dict[str, pl.DataFrame], values: dict[str, object] |
     return con.sql("select * from out").pl()
 
 
-def runs(frames: list[int]) -> list[tuple[int, int]]:
-    """Maximal runs of consecutive integers, walked one by one."""
+def bridged_runs(frames: list[int], gap: int = 0) -> list[tuple[int, int]]:
+    """Runs of frames, walked one by one: a new run when more than ``gap`` frames are missing in between."""
     out: list[tuple[int, int]] = []
     for f in sorted(set(frames)):
-        if out and f == out[-1][1] + 1:
+        if out and f - out[-1][1] - 1 <= gap:
             out[-1] = (out[-1][0], f)
         else:
             out.append((f, f))
     return out
 
 
-# --- islands ----------------------------------------------------------------------------------------------------
+DRIVES = pl.DataFrame({"drive_id": ["d"], "dt_s": [DT]})
 
-# per actor, frame by frame: absent, or present with four phase flags; a frame may also have a second row
-FRAME = st.one_of(st.none(), st.lists(st.lists(st.booleans(), min_size=4, max_size=4), min_size=1, max_size=2))
+
+# --- runs -----------------------------------------------------------------------------------------------------------
+
+# per actor, frame by frame: absent, or present with four phase flags and a segment; a frame may have a second row
+FRAME = st.one_of(st.none(), st.lists(st.tuples(st.lists(st.booleans(), min_size=4, max_size=4),
+                                                st.integers(0, 1)), min_size=1, max_size=2))
 PAIR_FRAMES = st.fixed_dictionaries({"a": st.lists(FRAME, max_size=40), "b": st.lists(FRAME, max_size=40)})
 
 
 @PROFILE
-@given(pairs=PAIR_FRAMES)
-def test_phase_islands_are_the_maximal_runs_of_each_phase(pairs):
-    rows = [(actor, f, flags) for actor, frames in pairs.items() for f, present in enumerate(frames)
-            if present is not None for flags in present]
-    frame = pl.DataFrame(
-        [{"drive_id": "d", "ego_id": "e", "actor_id": a, "frame": f, **{f"phase_{i + 1}": p[i] for i in range(4)}}
-         for a, f, p in rows],
-        schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
-                **{f"phase_{i}": pl.Boolean for i in range(1, 5)}})
-    got = sorted(run("match/phase_islands.sql", {"phase_frames": frame}).select(
-        "phase_index", "actor_id", "start_frame", "end_frame").iter_rows())
+@given(pairs=PAIR_FRAMES, max_gap_s=st.sampled_from([0.0, 0.1, 0.3]))
+def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment(pairs, max_gap_s):
+    rows = [(actor, f, flags, seg) for actor, frames in pairs.items() for f, present in enumerate(frames)
+            if present is not None for flags, seg in present]
+    phases = {f"phase_{i + 1}": pl.DataFrame(
+        [{"drive_id": "d", "ego_id": "e", "actor_id": a, "frame": f, "t_s": f * DT, "segment": seg, "holds": p[i]}
+         for a, f, p, seg in rows], schema=PHASE_SCHEMA) for i in range(4)}
+    got = run("match/phase_runs.sql", {**phases, "drive_inputs": DRIVES}, {"max_gap_s": max_gap_s})
+    got = sorted(got.select("phase_index", "actor_id", "segment", "start_frame", "end_frame").iter_rows())
+    gap = math.floor(max_gap_s / DT + 1e-9)
     expected = sorted(
-        (i + 1, actor, a, b)
-        for i in range(4) for actor in ("a", "b")
-        for a, b in runs([f for x, f, p in rows if x == actor and p[i]])  # a frame holds if any of its rows does
+        (i + 1, actor, seg, a, b)
+        for i in range(4) for actor in ("a", "b") for seg in (0, 1)
+        # a frame holds if any of its rows of that segment does
+        for a, b in bridged_runs([f for x, f, p, s in rows if x == actor and s == seg and p[i]], gap)
     )
     assert got == expected
 
 
 # --- sequential phases with duration limits --------------------------------------------------------------------------
 
-def islands_of(flags: list[bool]) -> list[tuple[int, int]]:
-    return runs([i for i, ok in enumerate(flags) if ok])
+def runs_of(flags: list[bool]) -> list[tuple[int, int]]:
+    return bridged_runs([i for i, ok in enumerate(flags) if ok])
 
 
-def oracle_two_phases(p1, p2, ego_frames, lim):
-    """Matches of phase 1 directly followed by phase 2, trimmed to the maxima around the transition."""
+def oracle_two_phases(p1, p2, ego_frames, lim, gap=0):
+    """Chains of phase 1 and phase 2 (the rule of match/chain.sql), walked run by run, trimmed to the maxima
+    around the transition and checked against the minima."""
     t = {f: round(f * DT, 6) for f in ego_frames}
     out = []
     for a1, b1 in p1:
+        transitions = []
         for a2, b2 in p2:
-            if a2 != b1 + 1:
-                continue
-            first = [f for f in ego_frames if a1 <= f <= b1
-                     and (lim["max1"] is None or t[f] >= b1 * DT - lim["max1"] - 1e-6)]
-            last = [f for f in ego_frames if a2 <= f <= b2
-                    and (lim["max2"] is None or t[f] <= a2 * DT + lim["max2"] + 1e-6)]
-            if not first or not last:
-                continue
-            start, end = min(first), max(last)
-            if b1 * DT - t[start] >= lim["min1"] - 1e-6 and t[end] - a2 * DT >= lim["min2"] - 1e-6:
-                out.append((start, b1, a2, end))
+            if a1 < a2 <= b1 + 1 + gap:
+                transitions.append((a2, b2))
+            elif a2 <= a1 and b2 >= a1 + 1:
+                transitions.append((b1 + 1 if b2 >= b1 + 1 else a1 + 1, b2))
+        if not transitions:
+            continue
+        start2, end2 = min(transitions)
+        end1 = start2 - 1
+        frames = [f for f in ego_frames if a1 <= f <= end2]
+        before = [t[f] for f in frames if f <= end1]
+        after = [t[f] for f in frames if f >= start2]
+        end1_s = max(before) if before else None
+        start2_s = min(after) if after else None
+        kept = [f for f in frames
+                if (f > end1 or lim["max1"] is None or (end1_s is not None and t[f] >= end1_s - lim["max1"] - 1e-6))
+                and (f < start2 or lim["max2"] is None
+                     or (start2_s is not None and t[f] <= start2_s + lim["max2"] + 1e-6))]
+        if not kept:
+            continue
+        s1, e1, s2, e2 = max(a1, min(kept)), min(end1, max(kept)), max(start2, min(kept)), min(end2, max(kept))
+        ok = all((b - a) * DT >= lo - 1e-6 and (hi is None or (b - a) * DT <= hi + 1e-6)
+                 for (a, b), lo, hi in (((s1, e1), lim["min1"], lim["max1"]), ((s2, e2), lim["min2"], lim["max2"])))
+        if ok:
+            out.append((s1, e1, s2, e2))
     return sorted(out)
 
 
@@ -103,28 +124,33 @@ LIMIT = st.sampled_from([None, 0.0, 0.3, 1.0])
 @given(n=st.integers(2, 50).flatmap(lambda n: st.tuples(
            st.lists(st.booleans(), min_size=n, max_size=n), st.lists(st.booleans(), min_size=n, max_size=n),
            st.lists(st.booleans(), min_size=n, max_size=n))),
-       min1=st.sampled_from([0.0, 0.2, 0.5]), min2=st.sampled_from([0.0, 0.2, 0.5]), max1=LIMIT, max2=LIMIT)
-def test_two_phases_join_islands_that_touch_and_trim_them_to_the_limits(n, min1, min2, max1, max2):
+       min1=st.sampled_from([0.0, 0.2, 0.5]), min2=st.sampled_from([0.0, 0.2, 0.5]), max1=LIMIT, max2=LIMIT,
+       gap=st.sampled_from([0, 2]))
+def test_two_phases_chain_by_the_one_rule_and_trim_to_the_limits(n, min1, min2, max1, max2, gap):
     ok1, ok2, seen = n
     seen = [s or i % 5 == 0 for i, s in enumerate(seen)]  # the ego's own samples, some missing
     ego_frames = [i for i, s in enumerate(seen) if s]
-
-    def phase(flags):
-        rows = [{"drive_id": "d", "ego_id": "e", "actor_id": "a", "start_frame": a, "end_frame": b,
-                 "start_s": round(a * DT, 6), "end_s": round(b * DT, 6)} for a, b in islands_of(flags)]
-        return pl.DataFrame(rows, schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String,
-                                          "start_frame": pl.Int64, "end_frame": pl.Int64, "start_s": pl.Float64,
-                                          "end_s": pl.Float64})
-
+    runs = pl.DataFrame(
+        [{"phase_index": k, "drive_id": "d", "ego_id": "e", "actor_id": "a", "start_frame": a, "end_frame": b,
+          "max_gap_frames": gap} for k, flags in ((1, ok1), (2, ok2)) for a, b in runs_of(flags)],
+        schema={"phase_index": pl.Int64, "drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String,
+                "start_frame": pl.Int64, "end_frame": pl.Int64, "max_gap_frames": pl.Int64})
     tracks = pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": ego_frames,
                            "t_s": [round(f * DT, 6) for f in ego_frames]},
                           schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64})
+    values = {"phase_count": 2, "max_gap_s": 0.0, "phase_1_min_duration_s": min1, "phase_2_min_duration_s": min2,
+              "phase_1_max_duration_s": max1, "phase_2_max_duration_s": max2,
+              "phase_3_min_duration_s": 0.0, "phase_4_min_duration_s": 0.0,
+              "phase_3_max_duration_s": None, "phase_4_max_duration_s": None}
+    con = duckdb.connect()
+    for name, frame in (("phase_runs", runs), ("tracks", tracks), ("drive_inputs", DRIVES)):
+        con.register(f"_{name}", frame)
+        con.execute(f"create temp table {name} as select * from _{name}")
+    materialise(con, "chain", "match/chain.sql", values)
+    materialise(con, "out", "match/sequential.sql", values)
+    got = sorted(con.sql("select p1_start_frame, p1_end_frame, p2_start_frame, p2_end_frame from out").fetchall())
     lim = {"min1": min1, "min2": min2, "max1": max1, "max2": max2}
-    got = run("match/two_phases.sql", {"phase_1": phase(ok1), "phase_2": phase(ok2), "tracks": tracks}, {
-        "phase_1_min_duration_s": min1, "phase_2_min_duration_s": min2,
-        "phase_1_max_duration_s": max1, "phase_2_max_duration_s": max2})
-    got = sorted(got.select("p1_start_frame", "p1_end_frame", "p2_start_frame", "p2_end_frame").iter_rows())
-    assert got == oracle_two_phases(islands_of(ok1), islands_of(ok2), ego_frames, lim)
+    assert got == oracle_two_phases(runs_of(ok1), runs_of(ok2), ego_frames, lim, gap)
 
 
 # --- coverage buckets --------------------------------------------------------------------------------------------------
@@ -140,7 +166,7 @@ def test_histogram_counts_every_sample_once_in_its_half_open_bucket(spec, data):
     hi = lo + n * every
     item = SimpleNamespace(name="x", values=None, lo=lo, hi=hi, every=every)
     enum = SimpleNamespace(name="kind", values=("car", "bike"), lo=None, hi=None, every=None)
-    buckets = _coverage_buckets(SimpleNamespace(name="s", coverage=[item, enum]))
+    buckets = coverage_buckets(SimpleNamespace(name="s", coverage=[item, enum]))
     edges = [b for b in buckets["lo"].drop_nulls().to_list()] + [hi]
     value = st.one_of(st.sampled_from(edges), st.floats(lo - 2 * every, hi + 2 * every), st.none(),
                       st.sampled_from([math.nextafter(e, -math.inf) for e in edges]))
@@ -196,18 +222,28 @@ def test_cyclist_phase_cuts_episodes_into_pieces_of_at_most_the_maximum(frames, 
           "box_distance_m": dist} for f, (kind, dist, _) in present],
         schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
                 "t_s": pl.Float64, "actor_kind": pl.String, "box_distance_m": pl.Float64})
-    tracks = pl.DataFrame([{"drive_id": "d", "actor_id": "e", "frame": f, "speed_mps": v} for f, (_, _, v) in present],
-                          schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
+    tracks = pl.DataFrame([{"drive_id": "d", "actor_id": "e", "frame": f, "t_s": f * dt, "speed_mps": v}
+                           for f, (_, _, v) in present],
+                          schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64,
                                   "speed_mps": pl.Float64})
     drives = pl.DataFrame({"drive_id": ["d"], "dt_s": [dt]})
-    got = run("phases/cyclist_close_to_moving_sut.sql",
-              {"relations": relations, "tracks": tracks, "drive_inputs": drives},
-              {"sut_minimal_speed_mps": 5 / 3.6, "min_distance_from_cyclist_m": 0.0,
-               "max_distance_from_cyclist_m": 5.0, "max_phase_duration_s": max_s})
-    got = sorted(got.select("start_frame", "end_frame").iter_rows())
+    con = duckdb.connect()
+    for name, frame in (("relations", relations), ("tracks", tracks), ("drive_inputs", drives)):
+        con.register(f"_{name}", frame)
+        con.execute(f"create temp table {name} as select * from _{name}")
+    values = {"sut_minimal_speed_mps": 5 / 3.6, "min_distance_from_cyclist_m": 0.0, "max_distance_from_cyclist_m": 5.0,
+              "max_gap_s": 0.0, "phase_count": 1, "phase_1_min_duration_s": 0.0, "phase_1_max_duration_s": max_s,
+              **{f"phase_{i}_{w}_duration_s": (0.0 if w == "min" else None) for i in (2, 3, 4) for w in ("min", "max")}}
+    materialise(con, "phase_1", "phases/cyclist_close_to_moving_sut.sql", values)
+    for i in (2, 3, 4):
+        materialise(con, f"phase_{i}", "match/no_phase.sql", values)
+    for table, query in (("phase_runs", "match/phase_runs.sql"), ("chain", "match/chain.sql"),
+                         ("out", "match/sequential.sql")):
+        materialise(con, table, query, values)
+    got = sorted(con.sql("select start_frame, end_frame from out").fetchall())
 
     holds = [f for f, (kind, dist, v) in present if kind == "cyclist" and 0.0 <= dist <= 5.0 and v >= 5 / 3.6]
     span = math.floor(max_s / dt + 1e-9) + 1  # frames a piece may span
-    expected = sorted((a, min(a + span - 1, b)) for start, b in runs(holds) for a in range(start, b + 1, span))
+    expected = sorted((a, min(a + span - 1, b)) for start, b in bridged_runs(holds) for a in range(start, b + 1, span))
     assert got == expected
     assert all((b - a) * dt <= max_s + 1e-9 for a, b in got)  # no piece lasts longer than the maximum

@@ -7,7 +7,8 @@ import polars as pl
 import sqlglot
 
 from logiq_sql.lint import lint_sql, lint_tree
-from logiq_sql.match import match, parse_ego, render, run_values, scenario_steps
+from logiq_sql.match import match
+from logiq_sql.plan import parse_ego, render, run_values, scenario_queries, scenario_steps
 from logiq_sql.paths import data_dir
 from logiq_sql.scenario import list_scenarios
 from logiq_sql.sql import bind, placeholders
@@ -58,7 +59,7 @@ def test_every_scenario_parameter_reaches_its_sql():
     for s in list_scenarios():
         values = run_values(s, parse_ego("auto"), 150.0)
         used = set()
-        for _, rel in [*scenario_steps(s), *[(None, q) for q in s.kpi_queries]]:
+        for rel in scenario_queries(s):
             used |= set(bind(rel, values))
         # a phase's duration limits reach the match query as phase_<i>_min/max_duration_s
         used |= {s.params[name].sql_name for i, phase in enumerate(s.phases, 1)

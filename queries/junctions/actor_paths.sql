@@ -5,7 +5,9 @@
 --
 -- s_m is the distance the box centre has travelled since the actor's first row: a position along the actor's
 -- own path, so offsets from a junction's start and end are differences of s_m (the junction scenarios need
--- no other actors).
+-- no other actors). Each step is the displacement projected on the actor's heading, so position jitter (a
+-- perception stack's 0.2 m) cancels out instead of adding up: the length of jittery steps would make a car
+-- waiting at the line travel metres.
 with
 
 actors as (
@@ -21,9 +23,8 @@ steps as (
         t.frame,
         t.t_s,
         t.heading_rad,
-        sqrt(
-            power(t.x_m - lag(t.x_m) over w, 2) + power(t.y_m - lag(t.y_m) over w, 2)
-        ) as step_m
+        (t.x_m - lag(t.x_m) over w) * cos(t.heading_rad) + (t.y_m - lag(t.y_m) over w) * sin(t.heading_rad)
+            as step_m
     from tracks as t
     inner join actors as a
         on t.drive_id = a.drive_id and t.actor_id = a.actor_id

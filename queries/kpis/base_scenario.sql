@@ -12,8 +12,7 @@ select
     cast(sum(cast(round(e.speed_mps * 1e6) as decimal(38, 0))) as double)
         / nullif(count(e.speed_mps), 0) / 1e6 * $mph_per_mps as ego_avg_speed_mph,
     max(e.speed_mps) * $mph_per_mps as ego_max_speed_mph,
-    max(m.end_s) - max(m.start_s) as interval_duration_s,
-    max(case when e.frame = m.start_frame then e.speed_mps end) * $mph_per_mps as ego_speed_at_start_mph
+    max(m.end_s) - max(m.start_s) as interval_duration_s
 from scenario_matches as m
 inner join tracks as e
     on m.drive_id = e.drive_id and m.ego_id = e.actor_id

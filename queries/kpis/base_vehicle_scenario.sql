@@ -19,8 +19,7 @@ actor as (
         max(a.speed_mps) * $mph_per_mps as vehicle_max_speed_mph,
         min(a.speed_mps) * $mph_per_mps as vehicle_min_speed_mph,
         max(a.accel_mps2) as vehicle_max_lon_acceleration_mpsps,
-        min(a.accel_mps2) as vehicle_min_lon_acceleration_mpsps,
-        max(case when a.frame = m.start_frame then a.speed_mps end) * $mph_per_mps as vehicle_speed_at_start_mph
+        min(a.accel_mps2) as vehicle_min_lon_acceleration_mpsps
     from scenario_matches as m
     inner join tracks as a
         on m.drive_id = a.drive_id and m.actor_id = a.actor_id

@@ -1,20 +1,27 @@
 -- match: sequential
--- grain: one row per match of a scenario whose phases (up to four) follow one another, with each phase's
---        interval (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
--- reads: chain (match/chain.sql, over phase_islands: the stretches of consecutive frames in which each
---        phase's conditions hold), tracks
--- params: $phase_count
+-- grain: one row per match of a scenario: its phases (up to four) one after the other, each phase's interval
+--        (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
+-- reads: chain (match/chain.sql over phase_runs), tracks, drive_inputs
+-- params: $phase_count, $phase_1_min_duration_s .. $phase_4_min_duration_s, $phase_1_max_duration_s ..
+--         $phase_4_max_duration_s (the durations the scenario's phases name; no minimum: 0, no maximum: NULL),
+--         $max_gap_s
 --
--- A match is a chain: phase 1 starts where one of its islands starts, and each next phase takes over from
--- the phase before it at its transition frame, while that phase still holds (or right after its last frame):
---   * if an island of the next phase starts after the current phase started, the next phase begins where
---     that island starts (the earliest such island): "the actor enters the encroachment area";
---   * otherwise, if the next phase already holds, it begins right after the current phase's island ends when
---     it still holds then ("the other car finished crossing, the Ego is still in the junction"), else at once,
---     one frame after the current phase began.
--- Phase k then lasts from its transition frame to the frame before the next transition; the last phase lasts
--- to the end of its island. Of several chains from one start, the one with the earliest transitions is kept.
--- The scenarios that use this query have no phase duration limits.
+-- Every scenario, one phase or four, is matched by this query (docs/semantics.md, "Phases and matches"):
+--   1. A match is a complete chain (chain.sql): phase k lasts from its transition frame to the frame before
+--      the next phase's transition; the last phase to the end of its run. Of several chains from one start,
+--      the one with the earliest transitions is kept.
+--   2. Durations have one meaning: end_s - start_s of the phase's interval in the match.
+--      Maximum: the first phase keeps its last max seconds before the transition, the last phase its first max
+--      seconds after it (so a long episode gives one match around each transition); a middle phase longer
+--      than its maximum gives no match. A one-phase scenario's run longer than the maximum is cut into
+--      consecutive pieces of at most the maximum from its start (floor(max / dt_s) + 1 frames), each a match:
+--      no part of the episode is lost.
+--      Minimum: then every phase must last at least its minimum.
+--   3. Jitter: a chain that lasts less than max_gap altogether (a distance dipping under its limit for a frame or
+--      two on noisy positions) is not an episode and gives no match; the other half of bridging gaps of at most
+--      max_gap (match/phase_runs.sql). A phase may still hold briefly inside a longer chain.
+-- Timestamps are compared with a 1 us tolerance, so a 3 s limit keeps 3 s of 0.1 s samples whatever the
+-- floating-point rounding of t_s.
 with
 
 chosen as (
@@ -39,7 +46,7 @@ steps as (
         c.chain_start_frame,
         c.phase_index,
         c.phase_start_frame,
-        c.island_end_frame
+        c.run_end_frame
     from chain as c
     inner join chosen as k
         on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
@@ -54,46 +61,201 @@ phases as (
             lead(s.phase_start_frame) over (
                 partition by s.drive_id, s.ego_id, s.actor_id, s.chain_start_frame order by s.phase_index
             ) - 1,
-            s.island_end_frame
+            s.run_end_frame
         ) as phase_end_frame
     from steps as s
 ),
 
-timed as (
+limits as (
+    select 1 as phase_index, cast($phase_1_min_duration_s as double) as min_s,
+        cast($phase_1_max_duration_s as double) as max_s
+    union all
+    select 2 as phase_index, cast($phase_2_min_duration_s as double) as min_s,
+        cast($phase_2_max_duration_s as double) as max_s
+    union all
+    select 3 as phase_index, cast($phase_3_min_duration_s as double) as min_s,
+        cast($phase_3_max_duration_s as double) as max_s
+    union all
+    select 4 as phase_index, cast($phase_4_min_duration_s as double) as min_s,
+        cast($phase_4_max_duration_s as double) as max_s
+),
+
+spans as (
+    -- per chain: its frames, where phase 1 ends and where the last phase begins, and the limits that trim them
     select
-        p.*,
-        ts.t_s as phase_start_s,
-        te.t_s as phase_end_s
+        p.drive_id,
+        p.ego_id,
+        p.actor_id,
+        p.chain_start_frame,
+        min(p.phase_start_frame) as first_frame,
+        max(p.phase_end_frame) as last_frame,
+        max(case when p.phase_index = 1 then p.phase_end_frame end) as p1_end_frame,
+        max(case when p.phase_index = $phase_count then p.phase_start_frame end) as last_start_frame,
+        max(case when p.phase_index = 1 then l.max_s end) as first_max_s,
+        max(case when p.phase_index = $phase_count then l.max_s end) as last_max_s
     from phases as p
-    inner join tracks as ts
-        on p.drive_id = ts.drive_id and p.ego_id = ts.actor_id and p.phase_start_frame = ts.frame
-    inner join tracks as te
-        on p.drive_id = te.drive_id and p.ego_id = te.actor_id and p.phase_end_frame = te.frame
+    inner join limits as l
+        on p.phase_index = l.phase_index
+    group by p.drive_id, p.ego_id, p.actor_id, p.chain_start_frame
+),
+
+ego_frames as (
+    -- the ego's frames over each chain; a one-phase chain is cut into pieces of at most its maximum
+    select
+        s.*,
+        e.frame,
+        e.t_s,
+        case
+            when $phase_count = 1 and s.first_max_s is not null
+                then floor((e.frame - s.first_frame) / (floor(s.first_max_s / nullif(d.dt_s, 0) + 1e-9) + 1))
+            else 0
+        end as piece
+    from spans as s
+    inner join drive_inputs as d
+        on s.drive_id = d.drive_id
+    inner join tracks as e
+        on s.drive_id = e.drive_id and s.ego_id = e.actor_id
+        and e.frame between s.first_frame and s.last_frame
+),
+
+transitions as (
+    -- the time phase 1 ends and the last phase begins (the ego's nearest frames)
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        chain_start_frame,
+        piece,
+        max(case when frame <= p1_end_frame then t_s end) as p1_end_s,
+        min(case when frame >= last_start_frame then t_s end) as last_start_s
+    from ego_frames
+    group by drive_id, ego_id, actor_id, chain_start_frame, piece
+),
+
+kept as (
+    -- the frames within the maximum of the first and the last phase, counted from the transitions
+    select
+        f.drive_id,
+        f.ego_id,
+        f.actor_id,
+        f.chain_start_frame,
+        f.piece,
+        min(f.frame) as start_frame,
+        max(f.frame) as end_frame
+    from ego_frames as f
+    inner join transitions as t
+        on f.drive_id = t.drive_id and f.ego_id = t.ego_id and f.actor_id = t.actor_id
+        and f.chain_start_frame = t.chain_start_frame and f.piece = t.piece
+    where $phase_count = 1
+        or (
+            (f.frame > f.p1_end_frame or f.first_max_s is null or f.t_s >= t.p1_end_s - f.first_max_s - 1e-6)
+            and (f.frame < f.last_start_frame or f.last_max_s is null
+                or f.t_s <= t.last_start_s + f.last_max_s + 1e-6)
+        )
+    group by f.drive_id, f.ego_id, f.actor_id, f.chain_start_frame, f.piece
+),
+
+clipped as (
+    select
+        p.drive_id,
+        p.ego_id,
+        p.actor_id,
+        p.chain_start_frame,
+        k.piece,
+        p.phase_index,
+        greatest(p.phase_start_frame, k.start_frame) as phase_start_frame,
+        least(p.phase_end_frame, k.end_frame) as phase_end_frame,
+        l.min_s,
+        l.max_s
+    from phases as p
+    inner join kept as k
+        on p.drive_id = k.drive_id and p.ego_id = k.ego_id and p.actor_id = k.actor_id
+        and p.chain_start_frame = k.chain_start_frame
+    inner join limits as l
+        on p.phase_index = l.phase_index
+),
+
+timed as (
+    -- a transition frame may be missing from the ego's track (a bridged gap): its time is then frame * dt_s
+    select
+        c.*,
+        coalesce(ts.t_s, c.phase_start_frame * d.dt_s) as phase_start_s,
+        coalesce(te.t_s, c.phase_end_frame * d.dt_s) as phase_end_s
+    from clipped as c
+    inner join drive_inputs as d
+        on c.drive_id = d.drive_id
+    left join tracks as ts
+        on c.drive_id = ts.drive_id and c.ego_id = ts.actor_id and c.phase_start_frame = ts.frame
+    left join tracks as te
+        on c.drive_id = te.drive_id and c.ego_id = te.actor_id and c.phase_end_frame = te.frame
+),
+
+matched as (
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        chain_start_frame,
+        piece,
+        min(case
+            when phase_end_s - phase_start_s >= coalesce(min_s, 0) - 1e-6
+                and (max_s is null or phase_end_s - phase_start_s <= max_s + 1e-6) then 1
+            else 0
+        end) as durations_ok,
+        min(phase_start_frame) as start_frame,
+        max(phase_end_frame) as end_frame,
+        min(phase_start_s) as start_s,
+        max(phase_end_s) as end_s,
+        max(case when phase_index = 1 then phase_start_frame end) as p1_start_frame,
+        max(case when phase_index = 1 then phase_end_frame end) as p1_end_frame,
+        max(case when phase_index = 1 then phase_start_s end) as p1_start_s,
+        max(case when phase_index = 1 then phase_end_s end) as p1_end_s,
+        max(case when phase_index = 2 then phase_start_frame end) as p2_start_frame,
+        max(case when phase_index = 2 then phase_end_frame end) as p2_end_frame,
+        max(case when phase_index = 2 then phase_start_s end) as p2_start_s,
+        max(case when phase_index = 2 then phase_end_s end) as p2_end_s,
+        max(case when phase_index = 3 then phase_start_frame end) as p3_start_frame,
+        max(case when phase_index = 3 then phase_end_frame end) as p3_end_frame,
+        max(case when phase_index = 3 then phase_start_s end) as p3_start_s,
+        max(case when phase_index = 3 then phase_end_s end) as p3_end_s,
+        max(case when phase_index = 4 then phase_start_frame end) as p4_start_frame,
+        max(case when phase_index = 4 then phase_end_frame end) as p4_end_frame,
+        max(case when phase_index = 4 then phase_start_s end) as p4_start_s,
+        max(case when phase_index = 4 then phase_end_s end) as p4_end_s
+    from timed
+    group by drive_id, ego_id, actor_id, chain_start_frame, piece
 )
 
 select
     drive_id,
     ego_id,
     actor_id,
-    min(phase_start_frame) as start_frame,
-    max(phase_end_frame) as end_frame,
-    min(phase_start_s) as start_s,
-    max(phase_end_s) as end_s,
-    max(case when phase_index = 1 then phase_start_frame end) as p1_start_frame,
-    max(case when phase_index = 1 then phase_end_frame end) as p1_end_frame,
-    max(case when phase_index = 1 then phase_start_s end) as p1_start_s,
-    max(case when phase_index = 1 then phase_end_s end) as p1_end_s,
-    max(case when phase_index = 2 then phase_start_frame end) as p2_start_frame,
-    max(case when phase_index = 2 then phase_end_frame end) as p2_end_frame,
-    max(case when phase_index = 2 then phase_start_s end) as p2_start_s,
-    max(case when phase_index = 2 then phase_end_s end) as p2_end_s,
-    max(case when phase_index = 3 then phase_start_frame end) as p3_start_frame,
-    max(case when phase_index = 3 then phase_end_frame end) as p3_end_frame,
-    max(case when phase_index = 3 then phase_start_s end) as p3_start_s,
-    max(case when phase_index = 3 then phase_end_s end) as p3_end_s,
-    max(case when phase_index = 4 then phase_start_frame end) as p4_start_frame,
-    max(case when phase_index = 4 then phase_end_frame end) as p4_end_frame,
-    max(case when phase_index = 4 then phase_start_s end) as p4_start_s,
-    max(case when phase_index = 4 then phase_end_s end) as p4_end_s
-from timed
-group by drive_id, ego_id, actor_id, chain_start_frame
+    start_frame,
+    end_frame,
+    start_s,
+    end_s,
+    p1_start_frame,
+    p1_end_frame,
+    p1_start_s,
+    p1_end_s,
+    p2_start_frame,
+    p2_end_frame,
+    p2_start_s,
+    p2_end_s,
+    p3_start_frame,
+    p3_end_frame,
+    p3_start_s,
+    p3_end_s,
+    p4_start_frame,
+    p4_end_frame,
+    p4_start_s,
+    p4_end_s
+from (
+    select
+        *,
+        max(end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame)
+            - min(start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame) as chain_s
+    from matched
+) as chains
+where durations_ok = 1
+    and chain_s >= $max_gap_s - 1e-6

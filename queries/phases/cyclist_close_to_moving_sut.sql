@@ -1,60 +1,33 @@
 -- phase: cyclist_close_to_moving_sut
--- grain: one row per (drive_id, ego_id, actor_id, island, piece): consecutive frames in which a cyclist is
---        close to the moving ego, cut into pieces of at most max_phase_duration
--- reads: relations, tracks, drive_inputs
--- params: $sut_minimal_speed_mps, $min_distance_from_cyclist_m, $max_distance_from_cyclist_m,
---         $max_phase_duration_s
+-- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor that is not a vehicle kind (relations
+--        keeps those within object_relation_range): the phase contract (docs/scenarios.md)
+-- reads: relations, tracks
+-- params: $sut_minimal_speed_mps, $min_distance_from_cyclist_m, $max_distance_from_cyclist_m
 --
--- Per frame: the ego's speed >= sut_minimal_speed, the actor is a cyclist, and the closest box-to-box
--- distance is in [min_distance_from_cyclist, max_distance_from_cyclist].
--- "The scenario should last at most max_phase_duration": an episode that lasts longer is cut into
--- consecutive pieces, each spanning at most max_phase_duration (floor(max/dt) + 1 frames), so no part of
--- it is lost; the last piece may be shorter.
-with
-
-close as (
-    select
-        r.drive_id,
-        r.ego_id,
-        r.actor_id,
-        r.frame,
-        r.t_s,
-        d.dt_s
-    from relations as r
-    inner join tracks as e
-        on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
-    inner join drive_inputs as d
-        on r.drive_id = d.drive_id
-    where r.actor_kind = 'cyclist'
-        and e.speed_mps >= $sut_minimal_speed_mps
-        and r.box_distance_m >= $min_distance_from_cyclist_m
-        and r.box_distance_m <= $max_distance_from_cyclist_m
-),
-
-islands as (
-    select
-        *,
-        frame - row_number() over (partition by drive_id, ego_id, actor_id order by frame) as island
-    from close
-),
-
-pieces as (
-    select
-        *,
-        floor(
-            (frame - min(frame) over (partition by drive_id, ego_id, actor_id, island))
-            / (floor($max_phase_duration_s / nullif(dt_s, 0) + 1e-9) + 1)
-        ) as piece
-    from islands
-)
-
+-- Conditions (holds = all of them):
+--   ego_moving          the ego's speed >= sut_minimal_speed
+--   actor_is_cyclist    the actor's kind is cyclist
+--   distance_in_range   the closest box-to-box distance is in [min_distance_from_cyclist, max_distance_from_cyclist]
+-- "The scenario should last at most max_phase_duration": the phase's max_duration (the scenario file); a longer
+-- episode is cut into consecutive matches (docs/semantics.md, "Durations").
 select
-    drive_id,
-    ego_id,
-    actor_id,
-    min(frame) as start_frame,
-    max(frame) as end_frame,
-    min(t_s) as start_s,
-    max(t_s) as end_s
-from pieces
-group by drive_id, ego_id, actor_id, island, piece
+    r.drive_id,
+    r.ego_id,
+    r.actor_id,
+    r.frame,
+    r.t_s,
+    0 as segment,
+    coalesce(e.speed_mps >= $sut_minimal_speed_mps, false) as ego_moving,
+    r.actor_kind = 'cyclist' as actor_is_cyclist,
+    r.box_distance_m >= $min_distance_from_cyclist_m
+        and r.box_distance_m <= $max_distance_from_cyclist_m as distance_in_range,
+    coalesce(e.speed_mps >= $sut_minimal_speed_mps, false) and r.actor_kind = 'cyclist'
+        and r.box_distance_m >= $min_distance_from_cyclist_m
+        and r.box_distance_m <= $max_distance_from_cyclist_m as holds,
+    e.speed_mps as ego_speed_mps,
+    r.actor_kind,
+    r.box_distance_m
+from relations as r
+inner join tracks as e
+    on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
+where r.actor_kind not in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')

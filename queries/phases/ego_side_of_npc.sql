@@ -1,77 +1,101 @@
 -- phase: ego_side_of_npc (sut_cut_out, phase 2)
--- grain: one row per (drive_id, ego_id, actor_id, island): a maximal run of consecutive frames that begins
---        with the ego's lane change and in which the ego drives in a lane beside the actor's, at least
---        min_ego_on_side_of_npc_phase_duration long
--- reads: relations, ego_lanes, track_lanes
--- params: $kinds_csv, $lane_calculation_tolerance_length_m, $min_ego_on_side_of_npc_phase_duration_s
+-- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is in the ego's lane or a lane beside
+--        it: the phase contract (docs/scenarios.md)
+-- reads: relations, ego_lanes
+-- params: $kinds_csv, $max_gap_s
 --
--- Per frame, all of:
---   actor    is of one of the kinds; its lane is beside the ego's lane (adjacent_side, from lane_neighbours:
---            robust to lane-id changes at segment boundaries), on the side opposite to the ego's lane change
---   ego      is more than lane_calculation_tolerance_length away from the actor's lane, and stays in the lane
---            run it entered with its lane change (a second lane change ends the phase)
--- The island must begin at the frame of the ego's lane change (ego_lanes.lane_change_side): "the Ego changes
--- lanes". The actor "continues driving in the same lane": had it changed lanes too, it would no longer be
--- beside the ego on that side, and the island ends. The match query keeps the first
--- max_ego_on_side_of_npc_phase_duration of it.
+-- Conditions (holds = all of them):
+--   actor_kind_ok          the actor is of one of the kinds
+--   actor_beside           the actor's lane is beside the ego's lane (adjacent_side, from lane_neighbours: robust
+--                          to lane-id changes at segment boundaries)
+--   ego_changed_lane_away  the ego's current lane run began with a lane change (ego_lanes.lane_change_side) to
+--                          the side away from the actor: "The Ego changes lanes and continues driving in the lane
+--                          adjacent to the vehicle_actor"
+--   beside_since_change    the actor was beside the ego on this side when that lane change happened (at a frame
+--                          at most max_gap after it, so one missed detection does not lose it) and has not been in
+--                          the ego's lane since: an actor that moves into the ego's new lane and out again is
+--                          cutting in and out itself, not the ego cutting out
+-- "The vehicle_actor continues driving in the same lane": had it changed lanes too, it would no longer be beside
+-- the ego on that side. segment = the ego's lane run: a second lane change of the ego ends the phase. Chained
+-- after ego_on_same_lane, the phase begins on the frame of the lane change (docs/semantics.md).
 with
 
-beside as (
+run_changes as (
+    -- the side of the lane change that began each lane run (NULL for the first run), and when
+    select
+        drive_id,
+        ego_id,
+        lane_run,
+        max(lane_change_side) as change_side,
+        min(t_s) as change_s
+    from ego_lanes
+    group by drive_id, ego_id, lane_run
+),
+
+first_beside as (
+    -- per lane run of the ego, actor and side: the first time the actor is beside the ego on that side
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        el.lane_run,
+        r.adjacent_side,
+        min(r.t_s) as first_s
+    from relations as r
+    inner join ego_lanes as el
+        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    where r.adjacent_side is not null
+    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run, r.adjacent_side
+),
+
+first_in_lane as (
+    -- per lane run of the ego and actor: the first time the actor is in the ego's (new) lane
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        el.lane_run,
+        min(r.t_s) as first_s
+    from relations as r
+    inner join ego_lanes as el
+        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    where r.same_lane
+    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run
+),
+
+conditions as (
     select
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run,
-        r.adjacent_side
+        el.lane_run as segment,
+        instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
+        r.adjacent_side is not null as actor_beside,
+        coalesce(c.change_side <> r.adjacent_side, false) as ego_changed_lane_away,
+        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false)
+            and (i.first_s is null or i.first_s > r.t_s) as beside_since_change,
+        r.actor_kind,
+        r.adjacent_side,
+        c.change_side,
+        f.first_s - c.change_s as beside_after_change_s,
+        el.lane_id as ego_lane_id,
+        r.actor_lane_id
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
-    left join track_lanes as kept
-        on r.drive_id = kept.drive_id and r.ego_id = kept.actor_id and r.frame = kept.frame
-        and r.actor_lane_id = kept.lane_id
-        and kept.dist_m <= $lane_calculation_tolerance_length_m
-    where instr($kinds_csv, ',' || r.actor_kind || ',') > 0
-        and r.adjacent_side is not null
-        and kept.lane_id is null
-),
-
-islands as (
-    select
-        *,
-        frame - row_number() over (
-            partition by drive_id, ego_id, actor_id, lane_run, adjacent_side order by frame
-        ) as island
-    from beside
-),
-
-spans as (
-    select
-        drive_id,
-        ego_id,
-        actor_id,
-        lane_run,
-        adjacent_side,
-        min(frame) as start_frame,
-        max(frame) as end_frame,
-        min(t_s) as start_s,
-        max(t_s) as end_s
-    from islands
-    group by drive_id, ego_id, actor_id, lane_run, adjacent_side, island
-    having max(t_s) - min(t_s) >= $min_ego_on_side_of_npc_phase_duration_s
+    inner join run_changes as c
+        on el.drive_id = c.drive_id and el.ego_id = c.ego_id and el.lane_run = c.lane_run
+    left join first_beside as f
+        on r.drive_id = f.drive_id and r.ego_id = f.ego_id and r.actor_id = f.actor_id and el.lane_run = f.lane_run
+        and r.adjacent_side = f.adjacent_side
+    left join first_in_lane as i
+        on r.drive_id = i.drive_id and r.ego_id = i.ego_id and r.actor_id = i.actor_id and el.lane_run = i.lane_run
+    where r.adjacent_side is not null or r.same_lane
 )
 
 select
-    s.drive_id,
-    s.ego_id,
-    s.actor_id,
-    s.start_frame,
-    s.end_frame,
-    s.start_s,
-    s.end_s
-from spans as s
-inner join ego_lanes as change
-    on s.drive_id = change.drive_id and s.ego_id = change.ego_id and s.start_frame = change.frame
-where change.lane_change_side is not null
-    and change.lane_change_side <> s.adjacent_side
+    *,
+    actor_kind_ok and actor_beside and ego_changed_lane_away and beside_since_change as holds
+from conditions

@@ -1,20 +1,23 @@
 -- phase: follower_vehicle
--- grain: one row per (drive_id, ego_id, actor_id, island): a maximal run of consecutive frames in which the
---        actor follows the ego, at least min_scenario_duration long
+-- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
+--        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
+--        it tests
 -- reads: relations, ego_lanes
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
---         $same_road_limit_s, $min_scenario_duration_s
+--         $same_road_limit_s
 --
--- Per frame, all of:
---   ego      is in a lane; the phase never spans a lane change of the ego (islands are cut per lane run)
---   actor    is of one of the kinds, entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor
---            alongside, or overlapping the ego, is not following it), with a time headway (gap / actor speed) in
---            [min_distance_from_sut_in_time_units, max_distance_from_sut_in_time_units]
---   nearest  it is the nearest road user (any kind) behind the ego in that lane: the one that follows the ego;
---            a car behind it follows it, not the ego
---   lane     the actor's lane is the ego's lane or its direct predecessor/successor (same_lane), or a lane the
---            ego drove in during the last same_road_limit seconds of the current lane run (same road)
--- "During the entire phase": every frame of the island satisfies all of it.
+-- Conditions (holds = all of them):
+--   ego_in_lane          the ego is in a lane (ego_lanes.lane_id)
+--   actor_kind_ok        the actor is of one of the kinds
+--   actor_behind         entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor alongside, or
+--                        overlapping the ego, is not following it)
+--   actor_on_ego_road    the actor's lane is the ego's lane or its direct predecessor/successor (same_lane), or
+--                        a lane the ego drove in during the last same_road_limit seconds of its lane run
+--   actor_nearest        it is the nearest road user (any kind) behind the ego on its road: the one that
+--                        follows the ego; a car behind it follows it, not the ego
+--   headway_in_range     time headway (gap / actor speed) in [min_distance_from_sut_in_time_units,
+--                        max_distance_from_sut_in_time_units]
+-- segment = the ego's lane run: "The Ego drives in one lane", so a run never spans a lane change of the ego.
 with
 
 road as (
@@ -31,18 +34,21 @@ road as (
     group by drive_id, ego_id, lane_run, lane_id
 ),
 
-following as (
+behind as (
     select
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        r.actor_kind,
-        r.time_headway_s,
         el.lane_run,
-        -- the follower is the road user right behind the ego: nobody else in the lane between them
-        row_number() over (partition by r.drive_id, r.ego_id, r.frame order by r.lon_gap_m, r.actor_id) as rank_behind
+        el.lane_id as ego_lane_id,
+        r.actor_lane_id,
+        r.actor_kind,
+        r.lon_gap_m,
+        r.time_headway_s,
+        r.lon_gap_m > 0 as actor_behind,
+        coalesce(r.same_lane or road.lane_id is not null, false) as actor_on_ego_road
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
@@ -51,31 +57,44 @@ following as (
         and r.actor_lane_id = road.lane_id
         and road.first_s <= r.t_s
         and road.last_s >= r.t_s - $same_road_limit_s
-    where el.lane_id is not null
-        and r.dx_m < 0
-        and r.lon_gap_m > 0
-        and (r.same_lane or road.lane_id is not null)
+    where r.dx_m < 0
 ),
 
-islands as (
+ranked as (
     select
         *,
-        frame - row_number() over (partition by drive_id, ego_id, actor_id, lane_run order by frame) as island
-    from following
-    where rank_behind = 1
-        and instr($kinds_csv, ',' || actor_kind || ',') > 0
-        and time_headway_s >= $min_distance_from_sut_in_time_units_s
-        and time_headway_s <= $max_distance_from_sut_in_time_units_s
+        -- the follower is the road user right behind the ego on its road: nobody else between them
+        row_number() over (
+            partition by drive_id, ego_id, frame, actor_behind and actor_on_ego_road order by lon_gap_m, actor_id
+        ) as rank_behind
+    from behind
+),
+
+conditions as (
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        frame,
+        t_s,
+        lane_run as segment,
+        ego_lane_id is not null as ego_in_lane,
+        instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
+        actor_behind,
+        actor_on_ego_road,
+        actor_behind and actor_on_ego_road and rank_behind = 1 as actor_nearest,
+        coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
+            and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
+        actor_kind,
+        ego_lane_id,
+        actor_lane_id,
+        lon_gap_m,
+        time_headway_s
+    from ranked
 )
 
 select
-    drive_id,
-    ego_id,
-    actor_id,
-    min(frame) as start_frame,
-    max(frame) as end_frame,
-    min(t_s) as start_s,
-    max(t_s) as end_s
-from islands
-group by drive_id, ego_id, actor_id, lane_run, island
-having max(t_s) - min(t_s) >= $min_scenario_duration_s
+    *,
+    ego_in_lane and actor_kind_ok and actor_behind and actor_on_ego_road and actor_nearest and headway_in_range
+        as holds
+from conditions

@@ -1,7 +1,7 @@
--- phase: unprotected_left_turn_frames
--- grain: one row per (drive_id, ego_id, actor_id, frame) at which the ego and a related actor are near or in
---        the same junction: every measured value the four phases test, each phase's conditions, and
---        phase_1 .. phase_4 (all of that phase's conditions hold)
+-- frames: unprotected_left_turn_frames (the scenario's `frames` step, read by its four phase queries)
+-- grain: one row per (drive_id, ego_id, ego_passage, actor_id, actor_passage, frame) at which the ego and a
+--        related actor are near or in the same junction: every measured value the four phases test, and every
+--        condition (phases/stop_in_green_light.sql, ... take the conjunction of theirs)
 -- reads: crossing_pairs, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
 --        traffic_light_states
 -- params: $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
@@ -250,13 +250,4 @@ conditions as (
     from measured
 )
 
-select
-    *,
-    actor_kind_ok and ego_turns_left and ego_near_junction_start and ego_stopped and light_in_range
-        and light_green and actor_near_junction_start and ego_yields as phase_1,
-    actor_kind_ok and ego_turns_left and ego_near_junction_start and actor_inside_junction
-        and actor_from_other_entry and ego_yields as phase_2,
-    actor_kind_ok and ego_turns_left and ego_yields and actor_crossing and actor_reaches_junction_end
-        as phase_3,
-    actor_kind_ok and ego_turns_left and ego_in_junction as phase_4
-from conditions
+select * from conditions

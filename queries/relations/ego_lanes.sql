@@ -1,17 +1,30 @@
 -- relations: ego_lanes
--- grain: one row per (drive_id, ego_id, frame): the ego's lane and its lane run
+-- grain: one row per (drive_id, ego_id, frame): the ego's lane (the lane of its lane run), its best lane, and its
+--        lane run
 -- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $lane_calculation_tolerance_length_m
 --
 -- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
 --   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
 --      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition;
---   2. the change happens at the first frame after the transition at which the ego is in a lane and more
---      than lane_calculation_tolerance_length away from the old lane and from the lanes that continue it
---      (its successors and predecessors): the keep_lane tolerance. The best lane may meanwhile have moved on
---      to the next segment, so a lane change across a segment boundary still counts;
---   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change.
+--   2. the change is confirmed if, after the transition, the ego is in a lane and more than
+--      lane_calculation_tolerance_length away from the old lane and from the lanes that continue it (its
+--      successors and predecessors): the keep_lane tolerance. It is dated at the transition, the frame at
+--      which the ego's centre crossed into the new lane. The best lane may meanwhile have moved on to the
+--      next segment, so a lane change across a segment boundary still counts;
+--   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change, and
+--      that return is not a transition of its own (so a flicker across the line never counts as a change back).
 -- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
+--
+--   best_lane_id      the lane the ego's centre is in at that frame (actor_lanes)
+--   lane_id           the ego's lane: its best lane, except after a transition that is never confirmed (the
+--                     centre crossed the line and came back within the tolerance: jitter, a drift), when it is
+--                     still the lane it came from. Every relation to the ego's lane (relations.same_lane,
+--                     adjacent_side) uses this column, so "same lane", "beside" and the lane change agree frame
+--                     by frame: a leader is in the ego's lane up to the frame before the change, and beside it
+--                     from the frame of the change on
+--   lane_change_side  the side the ego moved to, on the frame of the change (the first frame of a lane run)
+--   lane_run          how many lane changes the ego made up to this frame
 with
 
 ego_rows as (
@@ -65,6 +78,7 @@ transitions as (
         d.map_id,
         r.run_start_frame as transition_frame,
         r.previous_lane_id as from_lane_id,
+        r.lane_id as to_lane_id,
         n.side
     from runs_with_previous as r
     inner join drive_inputs as d
@@ -129,6 +143,7 @@ changes as (
     select
         o.drive_id,
         o.ego_id,
+        o.transition_frame,
         o.side,
         min(o.frame) as frame
     from old_lane as o
@@ -139,18 +154,92 @@ changes as (
         and o.back_in_old_lane = 0
         and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
     group by o.drive_id, o.ego_id, o.transition_frame, o.side
+),
+
+classed as (
+    -- a transition back into the lane line the previous transition came from, before that one was counted as a
+    -- change, is the ego returning (a flicker across the line), not a new transition. In a chain of such returns
+    -- they alternate: the first is a transition, the second its return, the third a transition again, ...
+    select
+        *,
+        row_number() over (partition by drive_id, ego_id, chain order by transition_frame) % 2 = 0 as is_return
+    from (
+        select
+            *,
+            sum(case when back then 0 else 1 end) over (
+                partition by drive_id, ego_id order by transition_frame
+                rows between unbounded preceding and current row
+            ) as chain
+        from (
+            select
+                t.drive_id,
+                t.ego_id,
+                t.transition_frame,
+                coalesce(c.frame is null and l.line_lane_id is not null, false) as back
+            from (
+                select
+                    *,
+                    lag(transition_frame) over (partition by drive_id, ego_id order by transition_frame)
+                        as previous_frame,
+                    lag(from_lane_id) over (partition by drive_id, ego_id order by transition_frame)
+                        as previous_from_lane_id
+                from transitions
+            ) as t
+            left join lane_line as l
+                on t.map_id = l.map_id and t.previous_from_lane_id = l.lane_id and t.to_lane_id = l.line_lane_id
+            left join changes as c
+                on t.drive_id = c.drive_id and t.ego_id = c.ego_id and t.previous_frame = c.transition_frame
+        ) as flagged
+    ) as chained
+),
+
+counted as (
+    -- the lane changes: the changes of the transitions that are not returns
+    select c.*
+    from changes as c
+    inner join classed as k
+        on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.transition_frame = k.transition_frame
+    where not k.is_return
+),
+
+resolved as (
+    -- a transition confirmed by a lane change takes effect at once (the change is dated at the transition: the
+    -- frame the ego's centre crossed into the new lane); so does a return; an unconfirmed transition holds the
+    -- old lane until the ego returns to it (or for good, until the next transition)
+    select
+        k.drive_id,
+        k.ego_id,
+        k.transition_frame,
+        case
+            when k.is_return or c.frame is not null then k.transition_frame
+            else r.return_frame
+        end as resolved_frame
+    from classed as k
+    left join counted as c
+        on k.drive_id = c.drive_id and k.ego_id = c.ego_id and k.transition_frame = c.transition_frame
+    left join returns as r
+        on k.drive_id = r.drive_id and k.ego_id = r.ego_id and k.transition_frame = r.transition_frame
 )
 
 select
-    e.drive_id,
-    e.ego_id,
-    e.frame,
+    p.drive_id,
+    p.ego_id,
+    p.frame,
     e.t_s,
-    e.lane_id,
+    case
+        when p.transition_frame is not null and (v.resolved_frame is null or p.frame < v.resolved_frame)
+            then p.from_lane_id
+        else p.lane_id
+    end as lane_id,
+    p.lane_id as best_lane_id,
     c.side as lane_change_side,
     count(c.frame) over (
-        partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+        partition by p.drive_id, p.ego_id order by p.frame rows between unbounded preceding and current row
     ) as lane_run
-from ego_rows as e
-left join changes as c
-    on e.drive_id = c.drive_id and e.ego_id = c.ego_id and e.frame = c.frame
+from pending as p
+inner join ego_rows as e
+    on p.drive_id = e.drive_id and p.ego_id = e.ego_id and p.frame = e.frame
+left join resolved as v
+    on p.drive_id = v.drive_id and p.ego_id = v.ego_id and p.transition_frame = v.transition_frame
+left join counted as c
+    on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.transition_frame

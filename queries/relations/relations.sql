@@ -1,7 +1,7 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
 -- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_line
--- params: $relation_range_m, $object_relation_range_m
+-- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps
 --
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
 -- object_relation_range apart for every other kind (people, cyclists, cones): close-object scenarios look
@@ -22,10 +22,13 @@
 --   time_headway_s      lon_gap / speed of the trailing vehicle (the one behind); NULL if it does not move
 --                       forward
 --   ttc_s               lon_gap / closing speed, for actors whose box overlaps the ego's laterally
---                       (lat_gap = 0); 0 when the boxes overlap; NULL when not closing or not overlapping
+--                       (lat_gap = 0); 0 when the boxes overlap; NULL when not overlapping or not closing: a
+--                       closing speed of at most min_closing_speed (0.1 m/s by default) is not closing (a
+--                       pair closing at 1e-16 m/s would otherwise get a TTC of 1e16 s)
 --   mttc_s              Ozbay et al. (2008) MTTC with constant relative acceleration: the least positive root
 --                       of 0.5*a*t^2 + v*t - lon_gap = 0 (v closing speed, a closing acceleration); D/v when
---                       |a| < 1e-6; NULL when no positive root or not laterally overlapping; 0 on overlap
+--                       |a| < 1e-6 and v > min_closing_speed; NULL when no positive root, when |a| < 1e-6 and
+--                       v <= min_closing_speed, or not laterally overlapping; 0 on overlap
 with
 
 ego as (
@@ -216,13 +219,13 @@ select
     case
         when boxes_overlap then 0.0
         when lat_gap_m > 0 then null
-        when closing_speed_mps > 0 then lon_gap_m / closing_speed_mps
+        when closing_speed_mps > $min_closing_speed_mps then lon_gap_m / closing_speed_mps
     end as ttc_s,
     case
         when boxes_overlap then 0.0
         when lat_gap_m > 0 then null
         when closing_accel_mps2 is null or abs(closing_accel_mps2) < 1e-6 then
-            case when closing_speed_mps > 0 then lon_gap_m / closing_speed_mps end
+            case when closing_speed_mps > $min_closing_speed_mps then lon_gap_m / closing_speed_mps end
         when discriminant < 0 then null
         when root_plus_s > 0 and root_minus_s > 0 then least(root_plus_s, root_minus_s)
         when root_plus_s > 0 then root_plus_s
