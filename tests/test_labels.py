@@ -371,7 +371,7 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     assert labels.schema == pl.Schema(LABEL_SCHEMA)
     db = tmp_path / "j.duckdb"
     ingest("sumo", [JUNCTION], db)
-    match(db, ego="every:4")
+    match(db, scenarios=list(SCENARIOS), ego="every:4")  # the labelled ones (others would be all FP)
     result = evaluate(db, out)
     assert set(result.scores["scenario"]) == set(SCENARIOS)
     events = result.events.group_by("scenario", "role").len()
