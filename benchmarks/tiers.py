@@ -104,7 +104,7 @@ def build_base(base: Path) -> list[str]:
     ingest("av2", [DATA / "av2"], db)
     runs = [DATA / "sumo" / "motorway_s1", DATA / "sumo" / "junction_s1"]
     try:
-        from logiq_sql.simulate import simulate
+        from logiq_sql.evaluation.simulate import simulate
 
         for kind, seed in GENERATED_SUMO:
             out = base / "sumo" / f"{kind}_s{seed}"

@@ -7,8 +7,6 @@ import sys
 from pathlib import Path
 
 from logiq_sql.errors import DiskFullError, FileBusyError, LogiqError
-from logiq_sql.evaluate import add_evaluate_parser
-from logiq_sql.labels import add_label_parser
 from logiq_sql.plan import DEFAULT_RELATION_RANGE
 
 # exit codes a scheduler can act on
@@ -61,10 +59,46 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from logiq_sql.simulate import simulate
+    from logiq_sql.evaluation.perceive import Noise
+    from logiq_sql.evaluation.simulate import Regime, simulate
 
-    print(simulate(args.kind, args.minutes, args.seed, args.out))
+    regime = Regime(lane_change_duration_s=args.lane_change_duration, truck_share=args.truck_share,
+                    bus_share=args.bus_share, approach_lanes=args.approach_lanes, demand=args.demand,
+                    creep=args.creep)
+    noise = Noise(position_m=args.noise_position, heading_deg=args.noise_heading, speed_mps=args.noise_speed,
+                  drop_share=args.noise_drop, seed=args.seed if args.noise_seed is None else args.noise_seed)
+    if noise != Noise(seed=noise.seed) and not args.perceived:
+        raise LogiqError("--noise-*: the noise goes into a perceived copy of the run, never into SUMO's own records. "
+                         "Fix: add --perceived DIR (the copy is written to DIR/<run folder name>).")
+    print(simulate(args.kind, args.minutes, args.seed, args.out, regime=regime, noise=noise,
+                   perceived=args.perceived))
+    if args.perceived:
+        print(f"perceived copy ({noise}): {Path(args.perceived) / Path(args.out).name}")
     return 0
+
+
+def cmd_label(args: argparse.Namespace) -> int:
+    from logiq_sql.evaluation.labels import label_runs
+
+    labels = label_runs(args.runs, args.scenario or None, _set_pairs(args.set))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    labels.write_parquet(out)
+    counts = labels.group_by("drive_id", "scenario").len().sort("drive_id", "scenario")
+    for r in counts.iter_rows(named=True):
+        print(f"  {r['drive_id']}: {r['scenario']}: {r['len']} label(s)", file=sys.stderr)
+    print(f"{out}: {labels.height} label(s) of {labels['drive_id'].n_unique()} run(s)")
+    return EXIT_OK
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from logiq_sql.evaluation.evaluate import evaluate
+
+    result = evaluate(args.db, args.labels, iou_threshold=args.iou, out=args.out)
+    print(result.summary())
+    if args.out:
+        print(f"Parquet written to {Path(args.out).resolve()}")
+    return EXIT_OK
 
 
 def cmd_match(args: argparse.Namespace) -> int:
@@ -269,6 +303,30 @@ def build_parser() -> argparse.ArgumentParser:
                                                               "are warm-up)")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1); the same seed gives the same run")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write the run into")
+    g = p.add_argument_group("regime (docs/sumo.md, Regimes)")
+    g.add_argument("--lane-change-duration", type=float, default=3.0, metavar="S",
+                   help="seconds a lane change takes (SUMO --lanechange.duration; default 3; 0 = instantaneous)")
+    g.add_argument("--truck-share", type=float, default=0.15, metavar="X",
+                   help="share of motor vehicles that are trucks (default 0.15)")
+    g.add_argument("--bus-share", type=float, default=0.05, metavar="X",
+                   help="share of motor vehicles that are buses or coaches (default 0.05)")
+    g.add_argument("--demand", type=float, default=1.0, metavar="X", help="factor on every traffic flow (default 1)")
+    g.add_argument("--approach-lanes", type=int, default=3, choices=[2, 3, 4],
+                   help="junction: lanes per approach, i.e. its size (default 3)")
+    g.add_argument("--no-creep", dest="creep", action="store_false",
+                   help="junction: left-turners start from the line like other cars (default: they creep)")
+    g = p.add_argument_group("perception-like noise, written to a perceived copy of the run (docs/evaluation.md)")
+    g.add_argument("--perceived", metavar="DIR",
+                   help="also write DIR/<run folder name>: the run with noisy tracks, for ingest; label the original")
+    g.add_argument("--noise-position", type=float, default=0.0, metavar="M",
+                   help="standard deviation of the x and y jitter, metres (default 0)")
+    g.add_argument("--noise-heading", type=float, default=0.0, metavar="DEG",
+                   help="standard deviation of the heading jitter, degrees (default 0)")
+    g.add_argument("--noise-speed", type=float, default=0.0, metavar="MPS",
+                   help="standard deviation of the speed noise, m/s (default 0)")
+    g.add_argument("--noise-drop", type=float, default=0.0, metavar="X",
+                   help="share of detections dropped at random (default 0; 0.02 = 2 %%)")
+    g.add_argument("--noise-seed", type=int, metavar="N", help="seed of the noise (default: --seed)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("match", help="match scenarios against the drives of a DuckDB file", epilog=EPILOG,
@@ -383,10 +441,39 @@ def build_parser() -> argparse.ArgumentParser:
                    help="draw every N-th frame (default: at most 150 frames)")
     p.set_defaults(func=cmd_replay)
 
-    add_label_parser(sub)
-    add_evaluate_parser(sub)
+    _add_evaluation_parsers(sub)
     add_export_parser(sub)
     return parser
+
+
+def _add_evaluation_parsers(sub) -> None:
+    """``label`` and ``evaluate``: the evaluation harness (logiq_sql.evaluation), outside the product's path."""
+    p = sub.add_parser(
+        "label", help="ground-truth labels from a simulator's own records (for evaluate)", epilog=EPILOG,
+        description="Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change "
+                    "output, lanes and lane positions, vType boxes, the network's connections, signal states), "
+                    "independently of logiq_sql's SQL; `logiq-sql evaluate` scores matches against them. "
+                    "Definitions: docs/evaluation.md.")
+    p.add_argument("source", choices=["sumo"], help="sumo: run folders written by logiq-sql simulate")
+    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them")
+    p.add_argument("--out", required=True, metavar="FILE", help="labels Parquet file to write")
+    p.add_argument("--scenario", action="append", metavar="NAME",
+                   help="scenario to label (repeatable; default every scenario the labeller knows, "
+                        "docs/evaluation.md)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a parameter, with its unit, as for match")
+    p.set_defaults(func=cmd_label)
+
+    p = sub.add_parser(
+        "evaluate", help="score the matches of a DuckDB file against ground-truth labels", epilog=EPILOG,
+        description="Per scenario: event-level precision, recall and F1 (one-to-one pairs at temporal IoU >= "
+                    "--iou) and timestamp balanced accuracy over every frame of the egos the matcher used. "
+                    "Definitions: docs/evaluation.md.")
+    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file after logiq-sql match")
+    p.add_argument("--labels", required=True, metavar="FILE", help="labels Parquet (e.g. from logiq-sql label sumo)")
+    p.add_argument("--iou", type=float, default=0.5, metavar="X", help="IoU threshold of an event hit (default 0.5)")
+    p.add_argument("--out", metavar="DIR", help="write evaluation.parquet and evaluation_events.parquet into DIR")
+    p.set_defaults(func=cmd_evaluate)
 
 
 def main(argv: list[str] | None = None) -> int:

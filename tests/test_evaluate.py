@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 
 import polars as pl
 import pytest
 
 from logiq_sql import db
 from logiq_sql.errors import InputError
-from logiq_sql.evaluate import add_evaluate_parser, evaluate
+from logiq_sql.cli import build_parser
+from logiq_sql.evaluation.evaluate import evaluate
 
 DT = 0.1
 
@@ -173,8 +173,7 @@ def test_file_without_a_match_run(tmp_path):
 
 
 def test_cli_writes_parquet(tmp_path, capsys):
-    parser = argparse.ArgumentParser(prog="logiq-sql")
-    add_evaluate_parser(parser.add_subparsers(dest="command"))
+    parser = build_parser()
     args = parser.parse_args(["evaluate", "--db", str(make_file(tmp_path, [("s", "E1", "A", 1.0, 2.0)])),
                               "--labels", str(write_labels(tmp_path, [("s", "E1", "A", 1.0, 2.0)])),
                               "--iou", "0.7", "--out", str(tmp_path / "out")])

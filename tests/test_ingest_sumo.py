@@ -25,7 +25,7 @@ from logiq_sql import ingest
 from logiq_sql.cli import main
 from logiq_sql.errors import InputError, LogiqError
 from logiq_sql.readers import sumo as sumo_reader
-from logiq_sql.readers.sumo import read_fcd, read_sumo, read_vtypes
+from logiq_sql.readers.sumo import read_fcd, read_sumo, read_vtypes, xml_records
 
 DATA = Path(__file__).parent / "data" / "sumo"
 MOTORWAY, JUNCTION = DATA / "motorway_s1", DATA / "junction_s1"
@@ -354,7 +354,7 @@ def test_two_fcd_files_in_one_folder_are_an_input_error(tmp_path):
 
 def test_simulate_without_sumo_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "sumo", None)  # import sumo now raises ImportError
-    from logiq_sql.simulate import simulate
+    from logiq_sql.evaluation.simulate import simulate
 
     with pytest.raises(LogiqError, match=re.escape("pip install 'logiq-sql[sumo]'")):
         simulate("junction", 1, 7, tmp_path / "x")
@@ -442,3 +442,90 @@ def test_plain_xml_with_a_person(tmp_path):
     assert person["y_m"] == pytest.approx(574.08 + 0.215 / 2)  # heading south: the centre is north of the front
     assert t.filter(pl.col("actor_id") == "v")["y_m"].to_list() == pytest.approx([597.6, 596.2, 594.8])
     assert drive.traffic_light_states.is_empty() and drive.dt_s == 0.1
+
+
+# ------------------------------------------------------------------------------- regimes and perceived copies
+
+def test_regime_options_are_checked():
+    from logiq_sql.evaluation.simulate import Regime
+
+    with pytest.raises(LogiqError, match="--approach-lanes 5: choose one of 2, 3, 4"):
+        Regime(approach_lanes=5)
+    with pytest.raises(LogiqError, match="--truck-share 0.6 and --bus-share 0.5"):
+        Regime(truck_share=0.6, bus_share=0.5)
+    with pytest.raises(LogiqError, match="--lane-change-duration -1"):
+        Regime(lane_change_duration_s=-1)
+
+
+def test_perturbation_is_seeded_and_has_the_asked_spread():
+    from logiq_sql.evaluation.perceive import Noise, perturb
+
+    n = 20_000
+    fcd = pl.DataFrame({"vehicle_id": [f"v{i % 50}" for i in range(n)], "x_m": [100.0] * n, "y_m": [5.0] * n,
+                        "angle_deg": [359.9] * n, "speed_mps": [0.05] * n})
+    noise = Noise(position_m=0.2, heading_deg=1.0, speed_mps=0.1, drop_share=0.02, seed=3)
+    a, b = perturb(fcd, noise), perturb(fcd, noise)
+    assert a.equals(b)  # same seed, same copy
+    assert not a.equals(perturb(fcd, Noise(0.2, 1.0, 0.1, 0.02, seed=4)))
+    assert abs(a.height / n - 0.98) < 0.005
+    assert abs(a["x_m"].std() - 0.2) < 0.01 and abs(a["y_m"].std() - 0.2) < 0.01
+    assert a["angle_deg"].is_between(0, 360, closed="left").all()  # wrapped, not 360.9
+    assert (a["speed_mps"] >= 0).all() and (a["speed_mps"] == 0).any()  # clipped at 0
+    assert perturb(fcd, Noise()).equals(fcd)
+    with pytest.raises(InputError, match="drop_share = 1"):
+        Noise(drop_share=1)
+
+
+def test_perceived_copy_keeps_the_drive_id_and_leaves_the_run_alone(tmp_path):
+    from logiq_sql.evaluation.perceive import Noise, perceive
+
+    run = tmp_path / "runs" / "junction_s1"
+    shutil.copytree(JUNCTION, run)
+    before = {f.name: f.read_bytes() for f in run.iterdir()}
+    copy = perceive(run, tmp_path / "perceived", Noise(position_m=0.2, drop_share=0.02, seed=1))
+    assert copy == tmp_path / "perceived" / "junction_s1"
+    assert {f.name: f.read_bytes() for f in run.iterdir()} == before
+    assert not list(copy.glob("lanechange*")) and not list(copy.glob("ssm*"))  # no simulator answers
+    with pytest.raises(InputError, match="would overwrite the run itself"):
+        perceive(run, tmp_path / "runs", Noise())
+    (drive,) = list(read_sumo(copy))
+    (exact,) = list(read_sumo(run))
+    assert drive.drive_id == exact.drive_id == "junction_s1"
+    assert 0.97 * exact.tracks.height < drive.tracks.height < 0.99 * exact.tracks.height
+    moved = drive.tracks.join(exact.tracks, on=["actor_id", "frame"], suffix="_exact").select(
+        d=((pl.col("x_m") - pl.col("x_m_exact")) ** 2 + (pl.col("y_m") - pl.col("y_m_exact")) ** 2).sqrt())
+    assert 0.2 < moved["d"].median() < 0.3  # a 2-D Gaussian of 0.2 m per axis: median 0.235 m
+
+
+@pytest.mark.sumo
+def test_simulated_regime_has_gradual_lane_changes_trucks_buses_and_a_perceived_copy(tmp_path):
+    pytest.importorskip("sumo", reason="Eclipse SUMO is not installed: pip install 'logiq-sql[sumo]'")
+    assert main(["simulate", "motorway", "--minutes", "1.5", "--seed", "7", "--out", str(tmp_path / "mw"),
+                 "--perceived", str(tmp_path / "perceived"), "--noise-position", "0.2", "--noise-drop", "0.02"]) == 0
+    assert "--lanechange.duration 3" in (tmp_path / "mw" / "cmd.txt").read_text()
+    fcd = read_fcd(tmp_path / "mw" / "fcd.xml.gz", ("vehicle_id", "type_id", "y_m", "lane_id"))
+    assert {"truck", "bus"} <= set(fcd["type_id"])
+    changes = xml_records(tmp_path / "mw" / "lanechange.xml.gz", "change", ("id", "time", "from", "to"),
+                          "</lanechanges>")
+    assert changes.height > 20
+    # a lane change is a sideways move over about 3 s (SUMO records it when the lane switches, half-way): no
+    # jump of a lane width between two steps, but about a lane width over +-1.5 s
+    f = fcd.with_columns(frame=(pl.col("t_s") * 10).round().cast(pl.Int64))
+    c = changes.with_columns(frame=(pl.col("time").cast(pl.Float64) * 10).round().cast(pl.Int64)).filter(
+        pl.col("from").str.starts_with("CD") & pl.col("to").str.starts_with("CD"))
+
+    def y_at(offset: int) -> pl.DataFrame:
+        return c.join(f.select("vehicle_id", "frame", y=pl.col("y_m")), left_on=["id", pl.col("frame") + offset],
+                      right_on=["vehicle_id", "frame"]).select("id", "frame", pl.col("y").alias(f"y{offset}"))
+
+    y = y_at(0).join(y_at(-1), on=["id", "frame"]).join(y_at(-15), on=["id", "frame"]).join(y_at(15), on=["id", "frame"])
+    assert y.height > 5
+    assert ((y["y0"] - y["y-1"]).abs() < 0.3).all()
+    assert ((y["y15"] - y["y-15"]).abs() > 2.0).all()
+    assert (tmp_path / "perceived" / "mw" / "fcd.parquet").is_file()
+
+
+def test_noise_without_a_perceived_copy_is_refused(capsys):
+    assert main(["simulate", "motorway", "--out", "never_written", "--noise-drop", "0.02"]) == 2
+    assert "add --perceived DIR" in capsys.readouterr().err
+    assert not Path("never_written").exists()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import math
 import xml.etree.ElementTree as ET
@@ -15,10 +14,9 @@ import shapely
 import shapely.affinity
 
 from logiq_sql.errors import InputError, ScenarioError
-from logiq_sql.labels import (
+from logiq_sql.evaluation.labels import (
     LABEL_SCHEMA,
     SCENARIOS,
-    add_label_parser,
     box_corners,
     box_distance_m,
     conflict_zones,
@@ -359,14 +357,12 @@ def test_conflict_zones_are_sumo_foes():
 
 @needs_fixtures
 def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
-    from logiq_sql.evaluate import add_evaluate_parser, evaluate
+    from logiq_sql.cli import build_parser
+    from logiq_sql.evaluation.evaluate import evaluate
     from logiq_sql.ingestion import ingest
     from logiq_sql.match import match
 
-    parser = argparse.ArgumentParser(prog="logiq-sql")
-    sub = parser.add_subparsers(dest="command")
-    add_label_parser(sub)
-    add_evaluate_parser(sub)
+    parser = build_parser()
     out = tmp_path / "labels.parquet"
     args = parser.parse_args(["label", "sumo", str(JUNCTION), "--out", str(out)])
     assert args.func(args) == 0
@@ -375,7 +371,7 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     assert labels.schema == pl.Schema(LABEL_SCHEMA)
     db = tmp_path / "j.duckdb"
     ingest("sumo", [JUNCTION], db)
-    match(db, ego="every:4")
+    match(db, scenarios=list(SCENARIOS), ego="every:4")  # the labelled ones (others would be all FP)
     result = evaluate(db, out)
     assert set(result.scores["scenario"]) == set(SCENARIOS)
     events = result.events.group_by("scenario", "role").len()
@@ -383,3 +379,60 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     for col in ("precision", "recall", "f1", "ba_timestamp", "tpr", "tnr"):
         assert result.scores[col].drop_nulls().is_between(0, 1).all()
     assert any("the matcher did not use" in n for n in result.notes)
+
+
+# --------------------------------------------------------------------------------------- independence (13.7)
+
+def _imports_closure(module: str) -> set[str]:
+    """Every logiq_sql module ``module`` imports, directly or through others (read from the source with ast).
+
+    ``from logiq_sql import schema`` depends on ``schema``, not on the package's __init__ (which Python runs for
+    any import of the package and which re-exports the matcher for users).
+    """
+    import ast
+
+    root = Path(__file__).resolve().parents[1]
+
+    def source(name: str) -> Path | None:
+        base = root.joinpath(*name.split("."))
+        for path in (base.with_suffix(".py"), base / "__init__.py"):
+            if path.is_file():
+                return path
+        return None
+
+    seen, todo = set(), [module]
+    while todo:
+        name = todo.pop()
+        path = source(name)
+        if name in seen or path is None:
+            continue
+        seen.add(name)
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("logiq_sql"):
+                submodules = [f"{node.module}.{a.name}" for a in node.names if source(f"{node.module}.{a.name}")]
+                todo += submodules
+                if len(submodules) < len(node.names):  # a name defined in the module (or package) itself
+                    todo.append(node.module)
+            elif isinstance(node, ast.Import):
+                todo += [a.name for a in node.names if a.name.startswith("logiq_sql")]
+    return seen - {module}
+
+
+MATCHER_MODULES = {"logiq_sql.match", "logiq_sql.sql", "logiq_sql.explain", "logiq_sql.engines",
+                   "logiq_sql.localise", "logiq_sql.encroachment", "logiq_sql.ingestion", "logiq_sql.db",
+                   "logiq_sql.plan", "logiq_sql.runner", "logiq_sql.store", "logiq_sql.contract"}  # the split matcher
+
+
+def test_the_labeller_never_imports_the_matcher():
+    closure = _imports_closure("logiq_sql.evaluation.labels")
+    assert "logiq_sql.readers.sumo" in closure  # the walk sees the labeller's real imports
+    assert not closure & MATCHER_MODULES, closure & MATCHER_MODULES
+    assert not any(m.startswith("logiq_sql.match") for m in closure)  # nor a split matcher package
+    text = (Path(__file__).resolve().parents[1] / "logiq_sql/evaluation/labels.py").read_text()
+    assert ".sql" not in text and "queries" not in text  # nor reads a query file itself
+
+
+def test_the_evaluation_harness_does_not_import_the_cli():
+    for name in ("simulate", "labels", "evaluate", "crosscheck"):
+        closure = _imports_closure(f"logiq_sql.evaluation.{name}")
+        assert "logiq_sql.cli" not in closure, name

@@ -300,27 +300,3 @@ def evaluate(db_path: str | Path, labels_path: str | Path, iou_threshold: float 
     if out is not None:
         result.write(out)
     return result
-
-
-def cmd_evaluate(args) -> int:
-    result = evaluate(args.db, args.labels, iou_threshold=args.iou, out=args.out)
-    print(result.summary())
-    if args.out:
-        print(f"Parquet written to {Path(args.out).resolve()}")
-    return 0
-
-
-def add_evaluate_parser(subparsers) -> None:
-    """Register ``logiq-sql evaluate`` on the CLI's subparsers."""
-    from logiq_sql.cli import EPILOG
-
-    p = subparsers.add_parser(
-        "evaluate", help="score the matches of a DuckDB file against ground-truth labels", epilog=EPILOG,
-        description="Per scenario: event-level precision, recall and F1 (one-to-one pairs at temporal IoU >= "
-                    "--iou) and timestamp balanced accuracy over every frame of the egos the matcher used. "
-                    "Definitions: docs/evaluation.md.")
-    p.add_argument("--db", required=True, metavar="FILE", help="DuckDB file after logiq-sql match")
-    p.add_argument("--labels", required=True, metavar="FILE", help="labels Parquet (e.g. from logiq-sql label sumo)")
-    p.add_argument("--iou", type=float, default=0.5, metavar="X", help="IoU threshold of an event hit (default 0.5)")
-    p.add_argument("--out", metavar="DIR", help="write evaluation.parquet and evaluation_events.parquet into DIR")
-    p.set_defaults(func=cmd_evaluate)

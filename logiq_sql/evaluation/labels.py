@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import gzip
 import math
-import sys
 import zlib
 from pathlib import Path
 
@@ -588,37 +587,3 @@ def label_runs(paths: list[str | Path], scenarios: list[str] | None = None,
     if twice:
         raise InputError(f"two run folders are both named '{twice[0]}' (the drive id). Fix: rename one.")
     return pl.concat([label_sumo(f, scenarios, overrides) for f in folders])
-
-
-def cmd_label(args) -> int:
-    from logiq_sql.cli import _set_pairs
-
-    labels = label_runs(args.runs, args.scenario or None, _set_pairs(args.set))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    labels.write_parquet(out)
-    counts = labels.group_by("drive_id", "scenario").len().sort("drive_id", "scenario")
-    for r in counts.iter_rows(named=True):
-        print(f"  {r['drive_id']}: {r['scenario']}: {r['len']} label(s)", file=sys.stderr)
-    print(f"{out}: {labels.height} label(s) of {labels['drive_id'].n_unique()} run(s)")
-    return 0
-
-
-def add_label_parser(subparsers) -> None:
-    """Register ``logiq-sql label sumo RUN_DIR... --out FILE`` on the CLI's subparsers."""
-    from logiq_sql.cli import EPILOG
-
-    p = subparsers.add_parser(
-        "label", help="ground-truth labels from a simulator's own records (for evaluate)", epilog=EPILOG,
-        description="Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change "
-                    "output, lanes and lane positions, vType boxes, the network's connections, signal states), "
-                    "independently of logiq_sql's SQL; `logiq-sql evaluate` scores matches against them. "
-                    "Definitions: docs/evaluation.md.")
-    p.add_argument("source", choices=["sumo"], help="sumo: run folders written by logiq-sql simulate")
-    p.add_argument("runs", nargs="+", metavar="RUN_DIR", help="run folders, or folders holding them")
-    p.add_argument("--out", required=True, metavar="FILE", help="labels Parquet file to write")
-    p.add_argument("--scenario", action="append", metavar="NAME",
-                   help=f"scenario to label (repeatable; default all of {', '.join(SCENARIOS)})")
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                   help="override a parameter, with its unit, as for match")
-    p.set_defaults(func=cmd_label)

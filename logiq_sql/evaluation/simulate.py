@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from logiq_sql.errors import LogiqError
+from logiq_sql.evaluation.perceive import Noise, perceive
 
 KINDS = ("motorway", "junction")
 STEP_S = 0.1
@@ -126,22 +127,34 @@ def _motorway(out: Path) -> list[str]:
     return []
 
 
-_ARMS = {"N": (0, 300), "E": (300, 0), "S": (0, -300), "W": (-300, 0)}  # clockwise
+_ARMS = {"N": (0, 1), "E": (1, 0), "S": (0, -1), "W": (-1, 0)}  # unit directions, clockwise
+APPROACH_LANES = (2, 3, 4)
+ARM_M = 300.0
 
 
-def _junction(out: Path) -> list[str]:
-    """A signalised 4-way junction C: 300 m arms at 50 km/h; approaches of 3 lanes (0: right + straight,
-    1: straight, 2: dedicated left), exits of 2 (sumo.md 2b). Left turns get a permissive green ``g``."""
+def _junction(out: Path, approach_lanes: int) -> list[str]:
+    """A signalised 4-way junction C: 300 m arms at 50 km/h (sumo.md 2b). ``approach_lanes`` sets its size:
+
+    - 2: lane 0 right + straight, lane 1 straight + left (left-turners wait in the through lane); exits of 2;
+    - 3: lane 0 right + straight, lane 1 straight, lane 2 a dedicated left; exits of 2;
+    - 4: lane 0 right + straight, lanes 1-2 straight, lane 3 a dedicated left; exits of 3 (a wider junction, so
+      left-turners wait farther inside it).
+
+    Left turns get a permissive green ``g`` (they yield to oncoming traffic)."""
     arms = list(_ARMS)
+    exits = 3 if approach_lanes == 4 else 2
     nodes = ['<node id="C" x="0" y="0" type="traffic_light"/>'] + [
-        f'<node id="{a}" x="{x}" y="{y}" type="priority"/>' for a, (x, y) in _ARMS.items()]
+        f'<node id="{a}" x="{x * ARM_M:g}" y="{y * ARM_M:g}" type="priority"/>' for a, (x, y) in _ARMS.items()]
     edges, cons = [], []
+    left_lane = approach_lanes - 1
     for i, a in enumerate(arms):
-        edges.append(f'<edge id="{a}2C" from="{a}" to="C" numLanes="3" speed="13.89"/>')
-        edges.append(f'<edge id="C2{a}" from="C" to="{a}" numLanes="2" speed="13.89"/>')
+        edges.append(f'<edge id="{a}2C" from="{a}" to="C" numLanes="{approach_lanes}" speed="13.89"/>')
+        edges.append(f'<edge id="C2{a}" from="C" to="{a}" numLanes="{exits}" speed="13.89"/>')
         # arriving from arm a (clockwise order N, E, S, W): right is the next arm anticlockwise
         straight, right, left = arms[(i + 2) % 4], arms[(i + 3) % 4], arms[(i + 1) % 4]
-        cons += [(a, 0, right, 0), (a, 0, straight, 0), (a, 1, straight, 1), (a, 2, left, 1)]
+        cons += [(a, 0, right, 0), (a, 0, straight, 0)]
+        cons += [(a, k, straight, min(k, exits - 1)) for k in range(1, approach_lanes - (approach_lanes > 2))]
+        cons += [(a, left_lane, left, exits - 1)]
     _xml(out / "network.nod.xml", "nodes", nodes)
     _xml(out / "network.edg.xml", "edges", edges)
     _xml(out / "network.con.xml", "connections", [
@@ -157,45 +170,117 @@ def _flow(fid: str, vtype: str, src: str, dst: str, veh_per_h: float, end_s: flo
             f'from="{src}" to="{dst}" departLane="best" departSpeed="max"/>')
 
 
-def _motorway_routes(end_s: float) -> list[str]:
-    """About 4760 veh/h from a mix of normal cars, aggressive cars and trucks: dense, with many lane changes
-    (with SUMO's default drivers alone there are hardly any conflicts, sumo.md 2a)."""
-    types = [
-        '<vTypeDistribution id="mix">',
-        ('    <vType id="car" vClass="passenger" length="4.6" width="1.8" speedFactor="normc(1,0.1,0.8,1.2)" '
-         'probability="0.60"/>'),
-        ('    <vType id="aggressive" vClass="passenger" length="4.5" width="1.8" tau="0.5" minGap="1" '
-         'lcAssertive="4" lcSpeedGain="2" speedFactor="normc(1.1,0.1,0.9,1.3)" probability="0.25"/>'),
-        ('    <vType id="truck" vClass="truck" length="16.5" width="2.55" maxSpeed="25" '
-         'speedFactor="normc(1,0.05,0.9,1.1)" probability="0.15"/>'),
-        "</vTypeDistribution>",
-    ]
+@dataclass(frozen=True)
+class Regime:
+    """What makes a simulated drive realistic (docs/sumo.md, "Regimes").
+
+    lane_change_duration_s: SUMO's ``--lanechange.duration``: a lane change moves the vehicle sideways over this
+        many seconds (real ones take 2-6 s); 0 = SUMO's instantaneous change.
+    truck_share, bus_share: shares of the motor vehicles that are trucks (vClass truck) and buses (vClass bus).
+    approach_lanes: lanes of each junction approach (2, 3 or 4); the junction only.
+    demand: a factor on every flow (1 = the volumes of docs/sumo.md).
+    creep: left-turners stop at the line and creep into the junction (below 3 m/s) to their waiting position.
+    """
+
+    lane_change_duration_s: float = 3.0
+    truck_share: float = 0.15
+    bus_share: float = 0.05
+    approach_lanes: int = 3
+    demand: float = 1.0
+    creep: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.lane_change_duration_s >= 0:
+            raise LogiqError(f"--lane-change-duration {self.lane_change_duration_s}: give seconds >= 0 (0 = SUMO's "
+                             "instantaneous lane change).")
+        if not (0 <= self.truck_share and 0 <= self.bus_share and self.truck_share + self.bus_share <= 0.9):
+            raise LogiqError(f"--truck-share {self.truck_share:g} and --bus-share {self.bus_share:g}: give shares "
+                             ">= 0 whose sum is at most 0.9 (the rest are cars).")
+        if self.approach_lanes not in APPROACH_LANES:
+            raise LogiqError(f"--approach-lanes {self.approach_lanes}: choose one of "
+                             f"{', '.join(map(str, APPROACH_LANES))}.")
+        if not self.demand > 0:
+            raise LogiqError(f"--demand {self.demand}: give a positive factor on the traffic volumes.")
+
+    def describe(self) -> str:
+        change = (f"{self.lane_change_duration_s:g} s lane changes" if self.lane_change_duration_s
+                  else "instantaneous lane changes")
+        return (f"{change}, {self.truck_share * 100:g} % trucks, {self.bus_share * 100:g} % buses, demand x"
+                f"{self.demand:g}")
+
+
+def _flow(fid: str, vtype: str, src: str, dst: str, veh_per_h: float, end_s: float) -> str:
+    # probability per second (SUMO scales it to the step): random arrivals, reproducible with --seed
+    return (f'<flow id="{fid}" type="{vtype}" begin="0" end="{end_s:g}" probability="{veh_per_h / 3600:.4f}" '
+            f'from="{src}" to="{dst}" departLane="best" departSpeed="max"/>')
+
+
+def _vehicle_mix(regime: Regime, name: str, cars: list[tuple[str, str, float]], truck: str, bus: str,
+                 suffix: str = "") -> list[str]:
+    """A vTypeDistribution ``name``: the car types share 1 - trucks - buses in their given proportions."""
+    car_share = 1.0 - regime.truck_share - regime.bus_share
+    total = sum(p for _, _, p in cars)
+    members = [f'    <vType id="{tid}" {attrs} probability="{car_share * p / total:.4f}"/>' for tid, attrs, p in cars]
+    if regime.truck_share:
+        members.append(f'    <vType id="truck{suffix}" {truck} probability="{regime.truck_share:.4f}"/>')
+    if regime.bus_share:
+        members.append(f'    <vType id="bus{suffix}" {bus} probability="{regime.bus_share:.4f}"/>')
+    return [f'<vTypeDistribution id="{name}">', *members, "</vTypeDistribution>"]
+
+
+def _motorway_routes(end_s: float, regime: Regime) -> list[str]:
+    """About 4760 veh/h from a mix of normal cars, aggressive cars, trucks and coaches: dense, with many lane
+    changes (with SUMO's default drivers alone there are hardly any conflicts, sumo.md 2a)."""
+    types = _vehicle_mix(
+        regime, "mix",
+        [("car", 'vClass="passenger" length="4.6" width="1.8" speedFactor="normc(1,0.1,0.8,1.2)"', 0.70),
+         ("aggressive", 'vClass="passenger" length="4.5" width="1.8" tau="0.5" minGap="1" lcAssertive="4" '
+                        'lcSpeedGain="2" speedFactor="normc(1.1,0.1,0.9,1.3)"', 0.30)],
+        'vClass="truck" length="16.5" width="2.55" maxSpeed="25" speedFactor="normc(1,0.05,0.9,1.1)"',
+        'vClass="bus" length="13.5" width="2.55" maxSpeed="27.8" speedFactor="normc(1,0.05,0.9,1.1)"')
     flows = [("main_through", "AB", "EF", 3600), ("main_exit", "AB", "EX", 500),
              ("ramp_through", "RB", "EF", 600), ("ramp_exit", "RB", "EX", 60)]
-    return types + [_flow(f, "mix", a, b, q, end_s) for f, a, b, q in flows]
+    return types + [_flow(f, "mix", a, b, q * regime.demand, end_s) for f, a, b, q in flows]
 
 
-def _junction_routes(end_s: float) -> list[str]:
-    """1800 cars/h and 300 bicycles/h over the 12 turning movements; bicycles share every lane with cars."""
-    types = [
-        '<vType id="car" vClass="passenger" length="4.6" width="1.8" speedFactor="normc(1,0.1,0.8,1.2)"/>',
-        ('<vType id="bike" vClass="bicycle" length="1.6" width="0.65" maxSpeed="6" '
-         'speedFactor="normc(1,0.1,0.7,1.3)"/>'),
-    ]
+# creeping left-turners: a car queued at the line accelerates gently (1 m/s^2) towards its waiting position inside
+# the junction a few metres ahead, so it rolls there at 1-3 m/s instead of SUMO's brisk 2.6 m/s^2 start
+CREEP = 'accel="1.0"'
+
+
+def _junction_routes(end_s: float, regime: Regime) -> list[str]:
+    """1800 cars/h and 300 bicycles/h over the 12 turning movements (times ``demand``); bicycles share every lane
+    with cars; trucks and buses take their shares of the motor vehicles."""
+    car = 'vClass="passenger" length="4.6" width="1.8" speedFactor="normc(1,0.1,0.8,1.2)"'
+    truck = 'vClass="truck" length="12" width="2.5" maxSpeed="22" speedFactor="normc(1,0.05,0.9,1.1)"'
+    bus = 'vClass="bus" length="12" width="2.55" maxSpeed="22" speedFactor="normc(1,0.05,0.9,1.1)"'
+    types = _vehicle_mix(regime, "mix", [("car", car, 1.0)], truck, bus)
+    # left-turners of their own types: with ``creep`` they start gently from the line
+    slow = f" {CREEP}" if regime.creep else ""
+    types += _vehicle_mix(regime, "left_mix", [("left_car", car + slow, 1.0)], truck + slow, bus + slow, suffix="_left")
+    types.append('<vType id="bike" vClass="bicycle" length="1.6" width="0.65" maxSpeed="6" '
+                 'speedFactor="normc(1,0.1,0.7,1.3)"/>')
     arms = list(_ARMS)
     flows = []
     for i, a in enumerate(arms):
         for turn, b, cars, bikes in (("straight", arms[(i + 2) % 4], 250, 45), ("left", arms[(i + 1) % 4], 100, 15),
                                      ("right", arms[(i + 3) % 4], 100, 15)):
-            flows.append(_flow(f"car_{a}_{turn}", "car", f"{a}2C", f"C2{b}", cars, end_s))
-            flows.append(_flow(f"bike_{a}_{turn}", "bike", f"{a}2C", f"C2{b}", bikes, end_s))
+            mix = "left_mix" if turn == "left" else "mix"
+            flows.append(_flow(f"car_{a}_{turn}", mix, f"{a}2C", f"C2{b}", cars * regime.demand, end_s))
+            flows.append(_flow(f"bike_{a}_{turn}", "bike", f"{a}2C", f"C2{b}", bikes * regime.demand, end_s))
     return types + flows
 
 
 # ---------------------------------------------------------------------------------------------------------- run
 
-def simulate(kind: str, minutes: float, seed: int, out: str | Path) -> SimulationResult:
-    """Build the ``kind`` network, run ``minutes`` of traffic with ``seed`` and write ``OUTPUTS`` into ``out``."""
+def simulate(kind: str, minutes: float, seed: int, out: str | Path, regime: Regime | None = None,
+             noise: Noise | None = None, perceived: str | Path | None = None) -> SimulationResult:
+    """Build the ``kind`` network, run ``minutes`` of traffic with ``seed`` in ``regime`` (default: ``Regime()``)
+    and write ``OUTPUTS`` into ``out``. With ``perceived``, also write a perceived copy of the run (the same
+    drive with ``noise``, ``perceive.perceive``) into that folder."""
+    regime = regime or Regime()
+    if perceived is not None and noise is None:
+        noise = Noise(seed=seed)
     if kind not in KINDS:
         raise LogiqError(f"unknown simulation '{kind}'; choose one of {', '.join(KINDS)}.")
     if not minutes > 0:
@@ -205,8 +290,8 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path) -> Simulatio
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     end_s = round(minutes * 60, 1)
-    net_options = _motorway(out) if kind == "motorway" else _junction(out)
-    routes = _motorway_routes(end_s) if kind == "motorway" else _junction_routes(end_s)
+    net_options = _motorway(out) if kind == "motorway" else _junction(out, regime.approach_lanes)
+    routes = _motorway_routes(end_s, regime) if kind == "motorway" else _junction_routes(end_s, regime)
     _xml(out / "routes.rou.xml", "routes", routes)
     netconvert = ["netconvert", "--node-files", "network.nod.xml", "--edge-files", "network.edg.xml",
                   "--connection-files", "network.con.xml", "--no-turnarounds", *net_options,
@@ -219,7 +304,7 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path) -> Simulatio
         run += ["--additional-files", "tls.add.xml"]
     run += [
         "--begin", "0", "--end", f"{end_s:g}", "--step-length", f"{STEP_S:g}", "--seed", str(seed),
-        "--no-step-log",
+        "--no-step-log", "--lanechange.duration", f"{regime.lane_change_duration_s:g}",
         "--fcd-output", "fcd.xml.gz", "--fcd-output.attributes", FCD_ATTRIBUTES,
         "--fcd-output.max-leader-distance", "250",
         "--lanechange-output", "lanechange.xml.gz", "--lanechange-output.xy",
@@ -232,28 +317,42 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path) -> Simulatio
     commands = [netconvert, run]
     (out / "sumo.log").write_text("".join(_run(argv, bin_dir, out) for argv in commands))
     version = sumo_version(bin_dir)
+    options = command_options(kind, minutes, seed, regime)
     (out / "cmd.txt").write_text(
-        f"# logiq-sql simulate {kind} --minutes {minutes:g} --seed {seed}\n"
+        f"# logiq-sql simulate {options}\n"
         f"# {version}; binaries from the eclipse-sumo package (sumo.SUMO_HOME/bin); run in this folder\n"
         f"# seed {seed}\n" + "".join(shlex.join(c) + "\n" for c in commands))
-    (out / "SOURCE.md").write_text(_source_md(kind, minutes, seed, version))
+    (out / "SOURCE.md").write_text(_source_md(kind, options, minutes, seed, version, regime))
+    if perceived is not None:
+        perceive(out, perceived, noise)
     return SimulationResult(out, kind, minutes, seed, commands, time.perf_counter() - started)
 
 
-def _source_md(kind: str, minutes: float, seed: int, version: str) -> str:
+def command_options(kind: str, minutes: float, seed: int, regime: Regime) -> str:
+    """The simulate command line of this run (every regime option spelt out)."""
+    text = (f"{kind} --minutes {minutes:g} --seed {seed} --lane-change-duration {regime.lane_change_duration_s:g} "
+            f"--truck-share {regime.truck_share:g} --bus-share {regime.bus_share:g} --demand {regime.demand:g}")
+    if kind == "junction":
+        text += f" --approach-lanes {regime.approach_lanes}" + ("" if regime.creep else " --no-creep")
+    return text
+
+
+def _source_md(kind: str, options: str, minutes: float, seed: int, version: str, regime: Regime) -> str:
     what = {
         "motorway": "a 3.5 km, 3-lane motorway at 120 km/h with an on-ramp (300 m acceleration lane) and an "
-                    "off-ramp (200 m deceleration lane); about 4760 veh/h of normal cars (60 %), aggressive cars "
-                    "(25 %: tau 0.5 s, minGap 1 m, lcAssertive 4) and trucks (15 %, 16.5 m)",
-        "junction": "a signalised 4-way junction, 300 m arms at 50 km/h, approaches of 3 lanes (right + straight, "
-                    "straight, dedicated left), a 90 s two-phase plan where left turns get a permissive green `g` "
-                    "and yield to oncoming traffic; 1800 cars/h and 300 bicycles/h sharing the lanes",
+                    "off-ramp (200 m deceleration lane); about 4760 veh/h (times the demand factor) of normal and "
+                    "aggressive cars (tau 0.5 s, minGap 1 m, lcAssertive 4), trucks (16.5 m) and coaches (13.5 m)",
+        "junction": f"a signalised 4-way junction, 300 m arms at 50 km/h, approaches of {regime.approach_lanes} "
+                    "lanes, a 90 s two-phase plan where left turns get a permissive green `g` and yield to oncoming "
+                    "traffic; 1800 motor vehicles/h and 300 bicycles/h (times the demand factor) sharing the lanes"
+                    + ("; left-turners start gently from the line and creep to their waiting position"
+                       if regime.creep else ""),
     }[kind]
     files = "\n".join(f"| `{name}` | {doc} |" for name, doc in OUTPUTS.items()
                       if kind == "junction" or name != "tls_states.xml.gz")
     return f"""# SUMO simulation: {kind}, seed {seed}
 
-Generated by `logiq-sql simulate {kind} --minutes {minutes:g} --seed {seed}` with {version}: {what}.
+Generated by `logiq-sql simulate {options}` with {version}: {what}; {regime.describe()}.
 {minutes:g} simulated minute(s) at {STEP_S:g} s steps; the exact commands are in `cmd.txt`. The same command
 gives the same trajectories (only the date in SUMO's header comments differs).
 
