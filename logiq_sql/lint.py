@@ -184,7 +184,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from pyspark.sql import types as T
 
     from logiq_sql import replay
-    from logiq_sql.engines import INPUT_TABLES, spark_type, spark_text
+    from logiq_sql.engines import INPUT_TABLES, spark_text, spark_type
     from logiq_sql.plan import parse_ego, run_values, scenario_steps
     from logiq_sql.scenario import list_scenarios
     from logiq_sql.sql import bind

@@ -36,15 +36,15 @@ from logiq_sql.plan import (
     run_values,
     scenario_queries,
 )
-from logiq_sql.runner import prepare_relations, run_scenario
-from logiq_sql.scenario import Scenario, ScenarioPath
-from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
 
 # names callers import from here, kept since match.py was split into plan / runner / store
 from logiq_sql.plan import phase_steps as phase_steps  # noqa: F401
 from logiq_sql.plan import render as render  # noqa: F401
 from logiq_sql.plan import scenario_steps as scenario_steps  # noqa: F401
+from logiq_sql.runner import prepare_relations, run_scenario
+from logiq_sql.scenario import Scenario, ScenarioPath
 from logiq_sql.store import EXPORTED as EXPORTED  # noqa: F401
+from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
 
 # drives are matched in batches of about this many track rows, each stored in its own transaction: memory stays
 # bounded whatever the file holds (at 50 M rows one pass over every drive ran out of DuckDB's 4 GB)

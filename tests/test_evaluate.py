@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-
 import polars as pl
 import pytest
 
 from logiq_sql import db
-from logiq_sql.errors import InputError
 from logiq_sql.cli import build_parser
+from logiq_sql.errors import InputError
 from logiq_sql.evaluation.evaluate import evaluate
 
 DT = 0.1

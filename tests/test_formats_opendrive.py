@@ -36,7 +36,7 @@ def sumo_drive():
 @pytest.fixture(scope="module")
 def junction_xodr(tmp_path_factory, sumo_drive) -> Path:
     """The junction run's network as OpenDRIVE, written by netconvert."""
-    from logiq_sql.simulate import sumo_bin
+    from logiq_sql.readers.sumo import sumo_bin
 
     out = tmp_path_factory.mktemp("xodr") / "junction.xodr"
     bin_dir = sumo_bin()

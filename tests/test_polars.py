@@ -18,8 +18,8 @@ from logiq_sql import db, ingest, match
 from logiq_sql.encroachment import encroachments
 from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine, override, polars_blocker
 from logiq_sql.match import select_run_drives
-from logiq_sql.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
 from logiq_sql.paths import data_dir
+from logiq_sql.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
 from logiq_sql.sql import query_text
 
 DATA = Path(__file__).parent / "data"

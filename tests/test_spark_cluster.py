@@ -31,7 +31,6 @@ from logiq_sql import db, ingest
 from logiq_sql.dataset import attach
 from logiq_sql.dataset_ingest import ingest_dataset
 
-
 pytestmark = pytest.mark.spark_cluster
 ROOT = Path(__file__).resolve().parents[1]
 WORKERS = 2

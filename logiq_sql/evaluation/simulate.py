@@ -21,6 +21,7 @@ from pathlib import Path
 
 from logiq_sql.errors import LogiqError
 from logiq_sql.evaluation.perceive import Noise, perceive
+from logiq_sql.readers.sumo import sumo_bin
 
 KINDS = ("motorway", "junction")
 STEP_S = 0.1
@@ -28,7 +29,6 @@ STEP_S = 0.1
 # collision-free Krauss drivers few encounters go below 3 s, and the TTC cross-check needs car-following pairs.
 SSM_THRESHOLDS = "5.0 3.0 2.0"
 WARMUP_S = 60
-SUMO_VERSION = "1.28.0"  # the pinned eclipse-sumo of the [sumo] extra
 # file name -> what it holds; the reader and the labeller rely on these names
 OUTPUTS = {
     "network.net.xml.gz": "the network (netconvert)",
@@ -60,22 +60,6 @@ class SimulationResult:
                 f"{self.wall_s:.1f} s wall time")
 
 
-# ----------------------------------------------------------------------------------------------- SUMO binaries
-
-def sumo_bin() -> Path:
-    """The folder of SUMO's binaries, from the ``sumo`` package of the [sumo] extra."""
-    try:
-        import sumo
-    except ImportError:
-        raise LogiqError(
-            "Eclipse SUMO is not installed. Fix: pip install 'logiq-sql[sumo]' (eclipse-sumo and sumolib "
-            f"{SUMO_VERSION}, about 280 MB), then run the command again."
-        ) from None
-    folder = Path(sumo.SUMO_HOME) / "bin"
-    if not (folder / "sumo").is_file():
-        raise LogiqError(f"{folder}: the sumo package has no sumo binary here. Fix: pip install --force-reinstall "
-                         f"'logiq-sql[sumo]'.")
-    return folder
 
 
 def sumo_version(bin_dir: Path) -> str:

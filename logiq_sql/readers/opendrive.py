@@ -32,8 +32,7 @@ from logiq_sql import schema
 from logiq_sql.errors import InputError
 from logiq_sql.readers.base import DriveData
 from logiq_sql.readers.parquet import read_parquet
-from logiq_sql.readers.sumo import network_tables
-from logiq_sql.simulate import sumo_bin
+from logiq_sql.readers.sumo import network_tables, sumo_bin
 
 NETCONVERT_OPTIONS = ("--offset.disable-normalization", "true", "--opendrive.internal-shapes", "true",
                       "--no-turnarounds", "true", "--opposites.guess", "true")

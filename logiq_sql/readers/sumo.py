@@ -73,8 +73,26 @@ import polars as pl
 import shapely
 
 from logiq_sql import schema
-from logiq_sql.errors import InputError
+from logiq_sql.errors import InputError, LogiqError
 from logiq_sql.readers.base import DriveData
+
+SUMO_VERSION = "1.28.0"  # the pinned eclipse-sumo of the [sumo] extra
+
+
+def sumo_bin() -> Path:
+    """The folder of SUMO's binaries, from the ``sumo`` package of the [sumo] extra."""
+    try:
+        import sumo
+    except ImportError:
+        raise LogiqError(
+            "Eclipse SUMO is not installed. Fix: pip install 'logiq-sql[sumo]' (eclipse-sumo and sumolib "
+            f"{SUMO_VERSION}, about 280 MB), then run the command again."
+        ) from None
+    folder = Path(sumo.SUMO_HOME) / "bin"
+    if not (folder / "sumo").is_file():
+        raise LogiqError(f"{folder}: the sumo package has no sumo binary here. Fix: pip install --force-reinstall "
+                         f"'logiq-sql[sumo]'.")
+    return folder
 
 ATTRIBUTION = "Simulated with Eclipse SUMO (EPL-2.0); generated data, no third-party licence; see SOURCE.md"
 
