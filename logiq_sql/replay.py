@@ -23,8 +23,8 @@ import shapely
 
 from logiq_sql.db import connect
 from logiq_sql.errors import InputError
-from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
 from logiq_sql.plan import DEFAULT_MIN_CLOSING_SPEED_MPS
+from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
 from logiq_sql.sql import bind, query_text
 
 MARGIN_S = 1.0  # shown before and after the match
