@@ -174,6 +174,9 @@ def spark_session(master: str | None = None):
                .config("spark.ui.enabled", "false")
                .config("spark.ui.showConsoleProgress", "false")
                .config("spark.sql.shuffle.partitions", "4")
+               # a local or client driver JVM starts with this; Spark's 1 GB default ran out building the broadcast
+               # side of a relation join (SPARK_DRIVER_MEMORY to change it; spark-submit's --driver-memory wins)
+               .config("spark.driver.memory", os.environ.get("SPARK_DRIVER_MEMORY", "4g"))
                .config("spark.sql.session.timeZone", "UTC")
                # drive ids such as '101' stay strings when read back from partition folder names
                .config("spark.sql.sources.partitionColumnTypeInference.enabled", "false")
