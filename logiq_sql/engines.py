@@ -344,7 +344,8 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
                "tables or temp views" + ("; encroachments (shapely) as stored by match --keep" if s.junctions else "")]
     if s.junctions:
         header.append("-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached "
-                      "for batch Resolution): run it step by step, as match --engine spark does (docs/engines.md)")
+                      "for batch Resolution, or a 4 GB driver heap runs out): run it step by step, as match --engine "
+                      "spark does (docs/engines.md)")
     return "\n".join(header) + "\n" + text + "\n"
 
 

@@ -187,9 +187,12 @@ def test_rendered_spark_sql_binds_its_parameters_and_analyses(spark, analysed):
         text, args = render_spark_steps(scenario_steps(s), values)
         code = re.sub(r"/\*.*?\*/", "", text, flags=re.DOTALL)  # the query files' comments name their $parameters
         assert "$" not in code and all(f":{name}" in code for name in args)
-        if s.junctions:  # documented in docs/engines.md and in the rendered header: run it step by step
-            with pytest.raises(Exception, match=re.escape("Max iterations (100) reached for batch Resolution")):
-                spark.sql(text, args=args)
+        if s.junctions:
+            # Spark's analyser cannot take this statement as one piece: it stopped at "Max iterations (100)" before
+            # the phase contract, and runs a 4 GB driver heap out since (an OutOfMemoryError that would leave the
+            # shared JVM unusable, so it is not provoked here). The rendered header says so; every step of it is
+            # analysed on its own by test_every_query_analyses_on_spark, as match --engine spark runs it.
+            assert "run it step by step" in render(s.name, dict(s.overrides), engine="spark")
         else:
             assert spark.sql(text, args=args).schema.fields  # analysed, not run
         printed = render(s.name, {k: v for k, v in s.overrides.items()}, engine="spark")
