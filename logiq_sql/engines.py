@@ -342,10 +342,9 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
     header += [f"-- :{name} = {sql_literal(value)}" for name, value in args.items()]
     header += ["-- reads the canonical tables (docs/tables.md) and run_drives (drive_id of the drives to match) as "
                "tables or temp views" + ("; encroachments (shapely) as stored by match --keep" if s.junctions else "")]
-    if s.junctions:
-        header.append("-- Spark 4.3's analyser gives up on this statement as one piece (Max iterations (100) reached "
-                      "for batch Resolution, or a 4 GB driver heap runs out): run it step by step, as match --engine "
-                      "spark does (docs/engines.md)")
+    header.append("-- for reading and for small runs: Spark 4.3's analyser gives up on a whole scenario as one statement "
+                  "(Max iterations (100) for batch Resolution, or a 4 GB driver heap runs out); run it step by step, "
+                  "as match --engine spark does (docs/engines.md)")
     return "\n".join(header) + "\n" + text + "\n"
 
 
