@@ -103,6 +103,11 @@ def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
         raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
     with open_for_read(db) as con:  # one connection: the tables and the replays are of one published state
+        present = {r[0] for r in con.sql("select table_name from information_schema.tables").fetchall()}
+        missing = [t for t in ("matches", "kpis", "coverage", "match_runs") if t not in present]
+        if missing:
+            raise InputError(f"--db {db}: no match run recorded yet ({', '.join(missing)} missing): run "
+                             f"`logiq-sql match --db {db}` first, then the report.")
         data = {
             "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
                               "rows_rejected, reject_reason from drives order by status, drive_id").pl(),

@@ -63,11 +63,15 @@ def test_bad_input_exits_2_and_names_the_fix(tmp_path, capsys):
     assert "same_road_limit" in capsys.readouterr().err
     assert main(["report", "--db", str(tmp_path / "missing.duckdb"), "--out", str(tmp_path / "r.html")]) == 2
     assert "no such file" in capsys.readouterr().err
+    # ingested, never matched: the report says what to run first (it once died on a missing kpis table)
+    assert main(["report", "--db", db, "--out", str(tmp_path / "r.html")]) == 2
+    assert f"no match run recorded yet (kpis missing): run `logiq-sql match --db {db}` first" in capsys.readouterr().err
 
 
 def test_an_unexpected_failure_exits_1(tmp_path):
     db = tmp_path / "x.duckdb"
     assert main(["ingest", "commonroad", str(GOOD), "--db", str(db), "--quiet"]) == 0
+    assert main(["match", "--db", str(db), "--scenario", "follower_vehicle", "--quiet"]) == 0
     # the output folder cannot be created: an environment failure, not bad input
     run = subprocess.run([sys.executable, "-m", "logiq_sql.cli", "report", "--db", str(db), "--out",
                           "/proc/no/report.html"], check=False, capture_output=True, text=True, cwd=ROOT)
