@@ -358,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
     p.add_argument("--engine", choices=["duckdb", "spark", "polars"], default="duckdb",
                    help="what runs the queries: duckdb (default), spark (pip install 'logiq-sql[spark]', Java 17) "
-                        "or polars (Polars SQL, with its overrides; not yet the left turn: docs/engines.md). Results land "
+                        "or polars (Polars SQL, with its overrides: docs/engines.md). Results land "
                         "in --db either way")
     p.add_argument("--spark-master", metavar="URL",
                    help="Spark master for --engine spark (default: $SPARK_MASTER, else local[2])")

@@ -487,7 +487,6 @@ POLARS_MD5 = "unsupported function 'md5'"
 # rows. polars_blocker says which of these the engine still runs (docs/engines.md has the table).
 POLARS_UNSUPPORTED: dict[str, str] = {
     "match/identify.sql": POLARS_MD5,
-    "phases/unprotected_left_turn_frames.sql": "unsupported function 'bool_or'",
     # windows over the input order (an empty OVER ()), which DuckDB keeps and the other engines do not: ingest
     # runs on DuckDB only
     "staging/tracks.sql": "LAG requires an ORDER BY in the OVER clause",

@@ -86,24 +86,52 @@ occupancy as (
         on x.drive_id = ta.drive_id and x.actor_id = ta.actor_id
 ),
 
-crossing_times as (
-    -- first frame each box is in the area, and first frame after it has left it
+crossing_rows as (
+    -- the ego's and the actor's frames on their passages, beside each encroachment (two equi-joins, not one join
+    -- with an OR: Polars joins on equalities only)
     select
         o.drive_id,
         o.ego_id,
         o.ego_passage,
         o.actor_id,
         o.actor_passage,
-        min(case when e.actor_id = o.ego_id and e.s_m >= o.ego_occupancy_lo_m then e.frame end) as ego_in_frame,
-        min(case when e.actor_id = o.ego_id and e.s_m > o.ego_occupancy_hi_m then e.frame end) as ego_out_frame,
-        min(case when e.actor_id = o.actor_id and e.s_m >= o.actor_occupancy_lo_m then e.frame end) as actor_in_frame,
-        min(case when e.actor_id = o.actor_id and e.s_m > o.actor_occupancy_hi_m then e.frame end) as actor_out_frame
+        case when e.s_m >= o.ego_occupancy_lo_m then e.frame end as ego_in_frame,
+        case when e.s_m > o.ego_occupancy_hi_m then e.frame end as ego_out_frame,
+        cast(null as bigint) as actor_in_frame,
+        cast(null as bigint) as actor_out_frame
     from occupancy as o
     inner join junction_frames as e
-        on o.drive_id = e.drive_id
-        and ((e.actor_id = o.ego_id and e.passage = o.ego_passage)
-            or (e.actor_id = o.actor_id and e.passage = o.actor_passage))
-    group by o.drive_id, o.ego_id, o.ego_passage, o.actor_id, o.actor_passage
+        on o.drive_id = e.drive_id and o.ego_id = e.actor_id and o.ego_passage = e.passage
+    union all
+    select
+        o.drive_id,
+        o.ego_id,
+        o.ego_passage,
+        o.actor_id,
+        o.actor_passage,
+        cast(null as bigint) as ego_in_frame,
+        cast(null as bigint) as ego_out_frame,
+        case when e.s_m >= o.actor_occupancy_lo_m then e.frame end as actor_in_frame,
+        case when e.s_m > o.actor_occupancy_hi_m then e.frame end as actor_out_frame
+    from occupancy as o
+    inner join junction_frames as e
+        on o.drive_id = e.drive_id and o.actor_id = e.actor_id and o.actor_passage = e.passage
+),
+
+crossing_times as (
+    -- first frame each box is in the area, and first frame after it has left it
+    select
+        drive_id,
+        ego_id,
+        ego_passage,
+        actor_id,
+        actor_passage,
+        min(ego_in_frame) as ego_in_frame,
+        min(ego_out_frame) as ego_out_frame,
+        min(actor_in_frame) as actor_in_frame,
+        min(actor_out_frame) as actor_out_frame
+    from crossing_rows
+    group by drive_id, ego_id, ego_passage, actor_id, actor_passage
 ),
 
 crossing as (
@@ -166,6 +194,19 @@ leg_classes as (
     from legs
 ),
 
+ego_passage_lights as (
+    -- the lights that govern the ego's movement on each passage
+    select distinct
+        pe.drive_id,
+        pe.actor_id as ego_id,
+        pe.passage as ego_passage,
+        tl.light_id
+    from passages as pe
+    inner join traffic_lights as tl
+        on pe.map_id = tl.map_id and pe.entry_lane_id = tl.lane_id
+    where tl.direction is null or instr(',' || tl.direction || ',', ',' || pe.turn || ',') > 0
+),
+
 ego_lights as (
     select
         f.drive_id,
@@ -173,19 +214,18 @@ ego_lights as (
         f.ego_passage,
         f.frame,
         case
-            when count(tl.light_id) = 0 then null
-            when bool_or(s.state = 'green') then 'green'
+            when count(gl.light_id) = 0 then null
+            when max(case when s.state = 'green' then 1 else 0 end) = 1 then 'green'
             when count(s.state) = 0 then 'unknown'
             else min(s.state)
         end as light_state
     from (select distinct drive_id, ego_id, ego_passage, frame from pair_frames) as f
     inner join passages as pe
         on f.drive_id = pe.drive_id and f.ego_id = pe.actor_id and f.ego_passage = pe.passage
-    left join traffic_lights as tl
-        on pe.map_id = tl.map_id and pe.entry_lane_id = tl.lane_id
-        and (tl.direction is null or instr(',' || tl.direction || ',', ',' || pe.turn || ',') > 0)
+    left join ego_passage_lights as gl
+        on f.drive_id = gl.drive_id and f.ego_id = gl.ego_id and f.ego_passage = gl.ego_passage
     left join traffic_light_states as s
-        on f.drive_id = s.drive_id and tl.light_id = s.light_id and f.frame = s.frame
+        on f.drive_id = s.drive_id and gl.light_id = s.light_id and f.frame = s.frame
     group by f.drive_id, f.ego_id, f.ego_passage, f.frame
 ),
 
