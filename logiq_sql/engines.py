@@ -490,5 +490,4 @@ POLARS_UNSUPPORTED: dict[str, str] = {
     # windows over the input order (an empty OVER ()), which DuckDB keeps and the other engines do not: ingest
     # runs on DuckDB only
     "staging/tracks.sql": "LAG requires an ORDER BY in the OVER clause",
-    "coverage/histogram.sql": 'unable to find column "value_text:b"',  # a LEFT JOIN whose ON has an OR of ranges
 }

@@ -7,8 +7,35 @@
 --
 -- Numeric buckets are half-open [lo, hi) in the item's unit (the sample was converted before bucketing);
 -- enum buckets match value_text exactly. A value outside every bucket counts as 'out_of_range'; a NULL
--- sample (undefined value) counts as 'missing'.
+-- sample (undefined value) counts as 'missing'. Samples are put in their buckets by two equi-joins (enum, numeric)
+-- unioned, not one LEFT JOIN whose ON is an OR of conditions (Polars SQL cannot plan that): buckets of an item do
+-- not overlap and a match has one sample per item, so each sample lands in at most one bucket.
 with
+
+bucketed as (
+    -- the bucket of every sample that has one: enum buckets by their value, numeric ones by their range
+    select
+        s.scenario,
+        s.item,
+        s.match_id,
+        b.bucket_index,
+        b.bucket
+    from coverage_samples as s
+    inner join coverage_buckets as b
+        on s.scenario = b.scenario and s.item = b.item and s.value_text = b.value_text
+    where b.value_text is not null
+    union all
+    select
+        s.scenario,
+        s.item,
+        s.match_id,
+        b.bucket_index,
+        b.bucket
+    from coverage_samples as s
+    inner join coverage_buckets as b
+        on s.scenario = b.scenario and s.item = b.item
+    where b.value_text is null and s.value_num >= b.lo and s.value_num < b.hi
+),
 
 placed as (
     select
@@ -23,12 +50,8 @@ placed as (
             else 'out_of_range'
         end as landed_in
     from coverage_samples as s
-    left join coverage_buckets as b
-        on s.scenario = b.scenario and s.item = b.item
-        and (
-            (b.value_text is not null and s.value_text = b.value_text)
-            or (b.value_text is null and s.value_num >= b.lo and s.value_num < b.hi)
-        )
+    left join bucketed as b
+        on s.scenario = b.scenario and s.item = b.item and s.match_id = b.match_id
 ),
 
 counted as (
