@@ -4,13 +4,18 @@ The one geometric step of junction matching that is not SQL (like localisation a
 ``crossing_pairs`` and ``passages`` tables and the tracks, and writes ``encroachments``:
 
     path            the centre line of an actor's positions from its junction entry to its exit, swept by
-                    half its box width on each side (flat ends): the area its box covers inside the junction
+                    half its box width on each side (flat ends): the area its box covers inside the junction.
+                    Its vertices are the mean positions of the rows over each PATH_STEP_M (0.5 m) of s_m, so a
+                    car that waits with a jittering position is one point, not a knot of zig-zags
     area            ego path ∩ actor path (the "shared area where its path intersects the Ego's path inside
                     the junction"); pairs whose paths do not overlap get no row
     *_enter_s_m,    the extent of the area along each actor's own path: the least and greatest position
-    *_leave_s_m     (actor_paths.s_m) of the area's vertices projected onto the centre line. The box overlaps
-                    the area while its centre is within half its length of that stretch (see the left-turn
-                    phase query, which applies the encroachment buffers to it).
+    *_leave_s_m     (actor_paths.s_m) of the area's vertices projected onto the centre line. A projection lands
+                    at a distance along the line, which is mapped to s_m by interpolating between the line's
+                    vertices (each has the mean s_m of its rows): a line's own length counts what is left of the
+                    track's jitter, s_m does not (queries/junctions/actor_paths.sql). The box overlaps the area while
+                    its centre is within half its length of that stretch (see the left-turn phase query, which
+                    applies the encroachment buffers to it).
 """
 
 from __future__ import annotations
@@ -30,11 +35,12 @@ ENCROACHMENTS_SCHEMA = {
 # the tables encroachments() reads, every one keyed by drive_id; a drive without crossing pairs has no rows
 ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
+PATH_STEP_M = 0.5  # a path's vertices: the mean position of its rows over each 0.5 m of s_m
 
 
-def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray]:
-    """Every passage named by a crossing pair: its key, the path position of its first point, its centre line
-    and its swept path."""
+def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
+    """Every passage named by a crossing pair: its key, its centre line, its swept path, and its vertices with
+    their distance along the line (``along``, shifted so that it grows across all lines) and their s_m."""
     points = engine.frame("""
         with wanted as (
             select drive_id, ego_id as actor_id, ego_passage as passage from crossing_pairs
@@ -54,22 +60,37 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray]:
     passage_key = pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64) - 1
     keyed = points.with_columns(passage_key.alias("k"))
     paths = (keyed.group_by("k", maintain_order=True)
-             .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"), pl.first("s_m").alias("first_s_m"),
-                  pl.col("width_m").median().alias("width_m"), pl.len().alias("n")))
-    # a passage seen at one frame has no line: repeat its point so every passage has one
-    single = paths.filter(pl.col("n") == 1)["k"]
-    coords = keyed.select("k", "x_m", "y_m")
+             .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"),
+                  pl.col("width_m").median().alias("width_m")))
+    # one vertex per PATH_STEP_M of s_m: the mean position of the rows in that stretch, so a car waiting with a
+    # jittering position is one point where it waits, not a knot of zig-zags
+    coords = (keyed.group_by("k", (pl.col("s_m") / PATH_STEP_M).floor().alias("piece"))
+              .agg(pl.col("x_m").mean(), pl.col("y_m").mean(), pl.col("s_m").mean())
+              .sort("k", "piece").select("k", "x_m", "y_m", "s_m"))
+    # a passage that stays within one stretch has no line: repeat its point so every passage has one
+    single = coords.group_by("k").len().filter(pl.col("len") == 1)["k"]
     coords = pl.concat([coords, coords.filter(pl.col("k").is_in(single.implode()))]).sort("k", maintain_order=True)
     lines = shapely.linestrings(coords.select("x_m", "y_m").to_numpy(), indices=coords["k"].to_numpy())
     swept = shapely.buffer(lines, paths["width_m"].fill_null(1.8).to_numpy() / 2, cap_style="flat")
-    return paths.drop("n"), lines, swept
+    step = ((pl.col("x_m").diff().over("k") ** 2 + pl.col("y_m").diff().over("k") ** 2).sqrt()).fill_null(0.0)
+    vertices = coords.with_columns(along=step.cum_sum().over("k"))
+    # line k's distances start where line k-1's ended plus 1 m: one increasing scale for every line (np.interp)
+    starts = vertices.group_by("k").agg((pl.max("along") + 1.0).alias("span")).sort("k").with_columns(
+        start=pl.col("span").cum_sum() - pl.col("span"))
+    vertices = (vertices.join(starts.select("k", "start"), on="k")
+                .select("k", (pl.col("along") + pl.col("start")).alias("along"), "s_m", "start")
+                .sort("along", maintain_order=True))
+    return paths, lines, swept, vertices
 
 
-def _extent(lines: np.ndarray, areas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least and greatest position along each line of the vertices of its area, projected onto the line."""
-    xy, owner = shapely.get_coordinates(areas, return_index=True)
-    s = shapely.line_locate_point(lines[owner], shapely.points(xy))
-    frame = pl.DataFrame({"owner": owner, "s": s}).group_by("owner").agg(
+def _extent(lines: np.ndarray, areas: np.ndarray, owners: np.ndarray, vertices: pl.DataFrame
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Least and greatest s_m of the vertices of each area projected onto its line (``owners``: the line's key)."""
+    xy, index = shapely.get_coordinates(areas, return_index=True)
+    along = shapely.line_locate_point(lines[index], shapely.points(xy))
+    start = vertices.group_by("k").agg(pl.first("start")).sort("k")["start"].to_numpy()
+    s = np.interp(along + start[owners[index]], vertices["along"].to_numpy(), vertices["s_m"].to_numpy())
+    frame = pl.DataFrame({"owner": index, "s": s}).group_by("owner").agg(
         pl.min("s").alias("lo"), pl.max("s").alias("hi"))
     lo, hi = np.full(len(areas), np.nan), np.full(len(areas), np.nan)
     lo[frame["owner"].to_numpy()] = frame["lo"].to_numpy()
@@ -84,7 +105,7 @@ def encroachments(con) -> pl.DataFrame:
     pairs = engine.frame("crossing_pairs")
     if pairs.is_empty():
         return pl.DataFrame(schema=ENCROACHMENTS_SCHEMA)
-    paths, lines, swept = _paths(engine)
+    paths, lines, swept, vertices = _paths(engine)
     key = paths.select("drive_id", "actor_id", "passage", "k")
     pairs = (pairs
              .join(key.rename({"actor_id": "ego_id", "passage": "ego_passage", "k": "ek"}),
@@ -95,12 +116,11 @@ def encroachments(con) -> pl.DataFrame:
     area_m2 = shapely.area(areas)
     keep = area_m2 >= MIN_AREA_M2
     pairs, ek, ak, areas, area_m2 = pairs.filter(pl.Series(keep)), ek[keep], ak[keep], areas[keep], area_m2[keep]
-    entry_s = paths["first_s_m"].to_numpy()  # s_m of each line's first point: positions along it add to it
-    ego_lo, ego_hi = _extent(lines[ek], areas)
-    actor_lo, actor_hi = _extent(lines[ak], areas)
+    ego_lo, ego_hi = _extent(lines[ek], areas, ek, vertices)
+    actor_lo, actor_hi = _extent(lines[ak], areas, ak, vertices)
     return pairs.select(
         "drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage", "junction_id",
         pl.Series("area_m2", area_m2), pl.Series("area_wkt", shapely.to_wkt(areas, rounding_precision=3)),
-        pl.Series("ego_enter_s_m", entry_s[ek] + ego_lo), pl.Series("ego_leave_s_m", entry_s[ek] + ego_hi),
-        pl.Series("actor_enter_s_m", entry_s[ak] + actor_lo), pl.Series("actor_leave_s_m", entry_s[ak] + actor_hi),
+        pl.Series("ego_enter_s_m", ego_lo), pl.Series("ego_leave_s_m", ego_hi),
+        pl.Series("actor_enter_s_m", actor_lo), pl.Series("actor_leave_s_m", actor_hi),
     ).cast(ENCROACHMENTS_SCHEMA)

@@ -70,16 +70,9 @@ def test_motorway_event_f1(motorway, scenario, noise):
     _check(motorway[1], scenario, noise, 20)
 
 
-# The left turn under perception-like noise is below the issue's 0.90 (0.778 on seed 951, measured by this test on
-# the merged code): the open part of the realistic-manoeuvres issue (docs/evaluation.md). Strict: the day it
-# reaches the target, this marker must go.
-LEFT_TURN_NOISE_SHORT = pytest.mark.xfail(strict=True, reason="left turn with perception noise: F1 0.778 < 0.90 "
-                                          "on seed 951 (docs/evaluation.md); open")
-
-
 @pytest.mark.parametrize(("scenario", "noise"), [
     ("cyclist_close_to_moving_sut", "exact"), ("cyclist_close_to_moving_sut", "perception"),
-    (LEFT_TURN, "exact"), pytest.param(LEFT_TURN, "perception", marks=LEFT_TURN_NOISE_SHORT)])
+    (LEFT_TURN, "exact"), (LEFT_TURN, "perception")])
 def test_junction_event_f1(junction, scenario, noise):
     _check(junction[1], scenario, noise, 20)
 

@@ -14,8 +14,9 @@
 --                     and the entry leg are unknown); exit_observed likewise after it left
 --   entry_lane_id     the actor's lane at the last frame before entry that has one outside this junction
 --   exit_lane_id      its lane at the first such frame after exit
---   entry_heading_rad heading at the last frame before entry (the inbound direction); exit_heading_rad at the
---                     first frame after exit (the outbound direction)
+--   entry_heading_rad heading at the last frame seen before entry (the inbound direction; a dropped frame just
+--                     before it does not leave it unknown); exit_heading_rad at the first frame seen after exit
+--                     (the outbound direction)
 --   turn_from_map     the turn the map gives the connection from entry_lane_id to the junction lane that
 --                     leads on (directly or through one more junction lane) to exit_lane_id; NULL when the
 --                     map has no turn for it or gives two different ones
@@ -28,7 +29,9 @@ path as (
     select
         *,
         (coalesce(lag(s_m) over w, s_m) + s_m) / 2 as boundary_before_m,
-        (s_m + coalesce(lead(s_m) over w, s_m)) / 2 as boundary_after_m
+        (s_m + coalesce(lead(s_m) over w, s_m)) / 2 as boundary_after_m,
+        lag(heading_rad) over w as heading_before_rad,
+        lead(heading_rad) over w as heading_after_rad
     from actor_paths
     window w as (partition by drive_id, actor_id order by frame)
 ),
@@ -149,8 +152,8 @@ with_legs as (
         d.map_id,
         el.lane_id as entry_lane_id,
         xl.lane_id as exit_lane_id,
-        eh.heading_rad as entry_heading_rad,
-        xh.heading_rad as exit_heading_rad
+        eh.heading_before_rad as entry_heading_rad,
+        xh.heading_after_rad as exit_heading_rad
     from passages as p
     inner join drive_inputs as d
         on p.drive_id = d.drive_id
@@ -162,10 +165,10 @@ with_legs as (
     left join outside_lanes as xl
         on p.drive_id = xl.drive_id and p.actor_id = xl.actor_id and p.passage = xl.passage
         and xl.frame = g.exit_lane_frame
-    left join actor_paths as eh
-        on p.drive_id = eh.drive_id and p.actor_id = eh.actor_id and eh.frame = p.entry_frame - 1
-    left join actor_paths as xh
-        on p.drive_id = xh.drive_id and p.actor_id = xh.actor_id and xh.frame = p.exit_frame + 1
+    left join path as eh
+        on p.drive_id = eh.drive_id and p.actor_id = eh.actor_id and eh.frame = p.entry_frame
+    left join path as xh
+        on p.drive_id = xh.drive_id and p.actor_id = xh.actor_id and xh.frame = p.exit_frame
 ),
 
 map_turns as (

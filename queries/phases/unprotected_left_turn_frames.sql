@@ -12,6 +12,9 @@
 -- Definitions (docs/semantics.md, "unprotected_left_turn_with_yield_and_traffic_light"):
 --   ego_offset_from_junction_start_m, ...   offsets along each actor's own path (junction_frames)
 --   ego_turn                                 the turn of the ego's passage through the junction (passages.turn)
+--   ego_speed_mps                            the ego's speed averaged over its frame and the two rows either
+--                                            side (0.5 s at 10 Hz): a perceived speed's noise (0.1 m/s) must
+--                                            not make a car creeping just above the stop limit stop for a frame
 --   light_state                              state of the light that governs the ego's movement: a light of
 --                                            the ego's entry lane whose direction includes the ego's turn (or
 --                                            governs every movement); green if any such light is green; NULL
@@ -25,6 +28,10 @@
 --   actor_in_encroachment                    the actor's centre is inside its occupancy after the buffers
 --                                            cut encroachment_start_buffer and encroachment_end_buffer of
 --                                            its length from the start and the end
+--   in / out frame                           the frame from which a box stays in or past the area (its s_m
+--                                            at least the occupancy's start), and past it (beyond its end):
+--                                            the frame after its last one short of it; on a path that only
+--                                            moves forward, its first frame in (past) the area
 --   actor_first                              the actor's box leaves the area before the ego's enters it
 --   ego_yields                               actor_first, and the ego's box has not reached the area yet: the
 --                                            ego is giving the right of way
@@ -87,18 +94,18 @@ occupancy as (
 ),
 
 crossing_rows as (
-    -- the ego's and the actor's frames on their passages, beside each encroachment (two equi-joins, not one join
-    -- with an OR: Polars joins on equalities only)
+    -- the ego's and the actor's frames on their passages, beside each encroachment, and where the box is against
+    -- its occupancy stretch (two equi-joins unioned, not one join with an OR: Polars joins on equalities only)
     select
         o.drive_id,
         o.ego_id,
         o.ego_passage,
         o.actor_id,
         o.actor_passage,
-        case when e.s_m >= o.ego_occupancy_lo_m then e.frame end as ego_in_frame,
-        case when e.s_m > o.ego_occupancy_hi_m then e.frame end as ego_out_frame,
-        cast(null as bigint) as actor_in_frame,
-        cast(null as bigint) as actor_out_frame
+        'ego' as who,
+        e.frame,
+        e.s_m >= o.ego_occupancy_lo_m as reached,
+        e.s_m > o.ego_occupancy_hi_m as passed
     from occupancy as o
     inner join junction_frames as e
         on o.drive_id = e.drive_id and o.ego_id = e.actor_id and o.ego_passage = e.passage
@@ -109,28 +116,63 @@ crossing_rows as (
         o.ego_passage,
         o.actor_id,
         o.actor_passage,
-        cast(null as bigint) as ego_in_frame,
-        cast(null as bigint) as ego_out_frame,
-        case when e.s_m >= o.actor_occupancy_lo_m then e.frame end as actor_in_frame,
-        case when e.s_m > o.actor_occupancy_hi_m then e.frame end as actor_out_frame
+        'actor' as who,
+        e.frame,
+        e.s_m >= o.actor_occupancy_lo_m as reached,
+        e.s_m > o.actor_occupancy_hi_m as passed
     from occupancy as o
     inner join junction_frames as e
         on o.drive_id = e.drive_id and o.actor_id = e.actor_id and o.actor_passage = e.passage
 ),
 
-crossing_times as (
-    -- first frame each box is in the area, and first frame after it has left it
+crossing_last as (
+    -- each box's last frame short of the area, and its last frame not yet past it
     select
         drive_id,
         ego_id,
         ego_passage,
         actor_id,
         actor_passage,
-        min(ego_in_frame) as ego_in_frame,
-        min(ego_out_frame) as ego_out_frame,
-        min(actor_in_frame) as actor_in_frame,
-        min(actor_out_frame) as actor_out_frame
+        who,
+        max(case when not reached then frame end) as last_short_frame,
+        max(case when not passed then frame end) as last_unpassed_frame
     from crossing_rows
+    group by drive_id, ego_id, ego_passage, actor_id, actor_passage, who
+),
+
+crossing_first as (
+    -- the frame from which each box stays in or past the area (in), and past it (out): a position that jitters
+    -- across the area's edge while the car waits or creeps there enters it when it stops coming back
+    select
+        r.drive_id,
+        r.ego_id,
+        r.ego_passage,
+        r.actor_id,
+        r.actor_passage,
+        r.who,
+        min(case when r.reached and (l.last_short_frame is null or r.frame > l.last_short_frame) then r.frame end)
+            as in_frame,
+        min(case when r.passed and (l.last_unpassed_frame is null or r.frame > l.last_unpassed_frame) then r.frame end)
+            as out_frame
+    from crossing_rows as r
+    inner join crossing_last as l
+        on r.drive_id = l.drive_id and r.ego_id = l.ego_id and r.ego_passage = l.ego_passage
+        and r.actor_id = l.actor_id and r.actor_passage = l.actor_passage and r.who = l.who
+    group by r.drive_id, r.ego_id, r.ego_passage, r.actor_id, r.actor_passage, r.who
+),
+
+crossing_times as (
+    select
+        drive_id,
+        ego_id,
+        ego_passage,
+        actor_id,
+        actor_passage,
+        max(case when who = 'ego' then in_frame end) as ego_in_frame,
+        max(case when who = 'ego' then out_frame end) as ego_out_frame,
+        max(case when who = 'actor' then in_frame end) as actor_in_frame,
+        max(case when who = 'actor' then out_frame end) as actor_out_frame
+    from crossing_first
     group by drive_id, ego_id, ego_passage, actor_id, actor_passage
 ),
 
@@ -229,10 +271,52 @@ ego_lights as (
     group by f.drive_id, f.ego_id, f.ego_passage, f.frame
 ),
 
+ego_speed_rows as (
+    -- the ego's speed at each of its frames near the junction and at the two rows either side (lag and lead, not a
+    -- sliding frame: Polars SQL has none)
+    select
+        f.drive_id,
+        f.ego_id,
+        f.ego_passage,
+        f.frame,
+        t.speed_mps as v0,
+        lag(t.speed_mps, 2) over w as v_2,
+        lag(t.speed_mps, 1) over w as v_1,
+        lead(t.speed_mps, 1) over w as v1,
+        lead(t.speed_mps, 2) over w as v2
+    from (select distinct drive_id, ego_id, ego_passage, frame from pair_frames) as f
+    inner join tracks as t
+        on f.drive_id = t.drive_id and f.ego_id = t.actor_id and f.frame = t.frame
+    window w as (partition by f.drive_id, f.ego_id, f.ego_passage order by f.frame)
+),
+
+ego_speeds as (
+    -- the mean of the speeds that are known among the five
+    select
+        drive_id,
+        ego_id,
+        ego_passage,
+        frame,
+        case when n > 0 then total / n end as ego_speed_mps
+    from (
+        select
+            drive_id,
+            ego_id,
+            ego_passage,
+            frame,
+            coalesce(v_2, 0.0) + coalesce(v_1, 0.0) + coalesce(v0, 0.0) + coalesce(v1, 0.0) + coalesce(v2, 0.0)
+                as total,
+            case when v_2 is null then 0 else 1 end + case when v_1 is null then 0 else 1 end
+                + case when v0 is null then 0 else 1 end + case when v1 is null then 0 else 1 end
+                + case when v2 is null then 0 else 1 end as n
+        from ego_speed_rows
+    ) as sums
+),
+
 measured as (
     select
         f.*,
-        te.speed_mps as ego_speed_mps,
+        v.ego_speed_mps,
         g.ego_turn,
         l.light_state,
         g.actor_entry_leg,
@@ -250,8 +334,8 @@ measured as (
         c.actor_occupancy_hi_m - $encroachment_end_buffer * (c.actor_occupancy_hi_m - c.actor_occupancy_lo_m)
             as actor_encroachment_to_s_m
     from pair_frames as f
-    inner join tracks as te
-        on f.drive_id = te.drive_id and f.ego_id = te.actor_id and f.frame = te.frame
+    inner join ego_speeds as v
+        on f.drive_id = v.drive_id and f.ego_id = v.ego_id and f.ego_passage = v.ego_passage and f.frame = v.frame
     inner join leg_classes as g
         on f.drive_id = g.drive_id and f.ego_id = g.ego_id and f.ego_passage = g.ego_passage
         and f.actor_id = g.actor_id and f.actor_passage = g.actor_passage
