@@ -84,11 +84,28 @@ def test_follower_islands_cut_at_the_ego_lane_change(tmp_path):
             v(t, "D", 50 + 20 * t, 20, "e_0", leader="E" if t <= 0.9 else "", gap=20 if t <= 0.9 else -1),  # 0.9 s
         ]
     labels = label_sumo(write_run(tmp_path / "run", rows, [("E", 2.0, "e_0", "e_1")]), ["follower_vehicle"])
-    assert spans(labels, "follower_vehicle") == [("E", "A", 0.0, 1.9), ("E", "A", 2.0, 5.0)]
+    # after E's lane change A stays on e_0 with SUMO's leader still E: not the same lane, so no label
+    assert spans(labels, "follower_vehicle") == [("E", "A", 0.0, 1.9)]
     assert labels.schema == pl.Schema(LABEL_SCHEMA) and set(labels["drive_id"]) == {"run"}
     # the headway limit is a parameter: at most 1 s drops A (1.27 s) and keeps nobody
     tight = label_sumo(tmp_path / "run", ["follower_vehicle"], {"max_distance_from_sut_in_time_units": "1s"})
     assert tight.is_empty()
+
+
+def test_a_follower_is_on_a_lane_the_ego_was_on(tmp_path):
+    """SUMO's leader search follows the actor's route across a junction: a car waiting on its approach has as
+    leader an ego that came from another approach onto the exit it will take. The spec's "same lane" does not."""
+    rows = []
+    for t in steps(0, 4):
+        rows += [
+            # E drives e_0 -> :C_0 (the junction, no lane change) -> w_0; A follows 1.25 s behind on the same lanes
+            v(t, "E", 100 + 20 * t, 20, "e_0" if t < 1 else ":C_0" if t < 2 else "w_0"),
+            v(t, "A", 75 + 20 * t, 20, "e_0" if t < 2.25 else ":C_0", leader="E", gap=25),
+            # F approaches from another leg; SUMO gives E as its leader once E is on the exit F will take (2 s)
+            v(t, "F", 5 * t, 5, "n_0", y=-30, leader="E" if t >= 2 else "", gap=10 if t >= 2 else -1),
+        ]
+    labels = label_sumo(write_run(tmp_path / "run", rows), ["follower_vehicle"])
+    assert spans(labels, "follower_vehicle") == [("E", "A", 0.0, 4.0)]
 
 
 def test_cut_out_phases_and_edge_boundary(tmp_path):

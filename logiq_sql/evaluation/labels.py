@@ -163,19 +163,30 @@ def _headway_ok(gap: str, speed: str, p: dict) -> pl.Expr:
 # ------------------------------------------------------------------------------------------- follower_vehicle
 
 def follower_vehicle(rows: pl.DataFrame, p: dict) -> pl.DataFrame:
-    """The actor's FCD leader is the ego at a headway in range; islands cut at the ego's lane changes."""
+    """The actor's FCD leader is the ego at a headway in range, in the same lane; islands cut at the ego's lane
+    changes. Same lane as the spec means it ("drives behind the Ego in the same lane"): the actor's FCD lane is one
+    the ego was on, in its current lane run, at most same_road_limit ago. SUMO's leader search alone follows the
+    actor's route across a junction, so a car waiting on its approach would follow an ego that came from another
+    approach and turned onto the exit the car will take."""
     egos = rows.filter(_is_vehicle()).select(ego_id="vehicle_id", frame="frame", ego_run="lane_run")
     following = (
         rows.filter(pl.col("kind").is_in(p["kinds"]) & pl.col("leader_id").is_not_null()
                     & _headway_ok("leader_gap_m", "speed_mps", p))
-        .select(ego_id="leader_id", actor_id="vehicle_id", frame="frame", t_s="t_s")
+        .select(ego_id="leader_id", actor_id="vehicle_id", frame="frame", t_s="t_s", lane_id="lane_id")
         .join(egos, on=["ego_id", "frame"])
     )
-    islands = _islands(following, ["ego_id", "actor_id", "ego_run"])
+    ego_was_on = (rows.filter(_is_vehicle())
+                  .select(ego_id="vehicle_id", lane_id="lane_id", ego_run="lane_run", t_s="t_s",
+                          ego_on_lane_s="t_s").sort("t_s"))
+    same_lane = (following.sort("t_s")
+                 .join_asof(ego_was_on, on="t_s", by=["ego_id", "lane_id", "ego_run"], strategy="backward",
+                            check_sortedness=False)  # both sorted by t_s above, so within every group too
+                 .filter(pl.col("t_s") - pl.col("ego_on_lane_s") <= p["same_road_limit"] + EPS))
+    islands = _islands(same_lane, ["ego_id", "actor_id", "ego_run"])
     return islands.filter(pl.col("end_s") - pl.col("start_s") >= p["min_scenario_duration"] - EPS).select(
         "ego_id", "actor_id", "start_s", "end_s",
-        source=pl.lit("fcd: actor's leaderID = ego, leaderGap / actor speed in range; "
-                      "cut at the ego's lanechange records"))
+        source=pl.lit("fcd: actor's leaderID = ego, leaderGap / actor speed in range, actor on a lane the ego was "
+                      "on within same_road_limit; cut at the ego's lanechange records"))
 
 
 # ------------------------------------------------------------------------------------------------ sut_cut_out
