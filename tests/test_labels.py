@@ -150,6 +150,18 @@ def test_cyclist_pieces_and_distance_band(tmp_path):
     assert {r[1] for r in spans(wider, "cyclist_close_to_moving_sut")} == {"C", "C2"}
 
 
+def test_an_episode_shorter_than_max_gap_is_no_label(tmp_path):
+    """The matcher's jitter rule: a cyclist beside the ego for 0.3 s is a value dipping across a threshold."""
+    rows = []
+    for t in steps(0, 3):
+        rows += [v(t, "E", 10 * t + 2.3, 10, "e_0"),
+                 v(t, "C", 10 * t + 0.8, 10, "e_0", kind="bike", y=2.0 if 1.0 <= t <= 1.3 else 8.0)]
+    labels = label_sumo(write_run(tmp_path / "run", rows), ["cyclist_close_to_moving_sut"])
+    assert spans(labels, "cyclist_close_to_moving_sut") == []
+    finer = label_sumo(tmp_path / "run", ["cyclist_close_to_moving_sut"], {"max_gap": "0.2s"})
+    assert spans(finer, "cyclist_close_to_moving_sut") == [("E", "C", 1.0, 1.3)]
+
+
 def test_box_distance_matches_shapely():
     rng = np.random.default_rng(7)
     n = 2000
