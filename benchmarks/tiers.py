@@ -3,6 +3,7 @@ on S (~1 M track rows), M (~10 M) and L (>= 50 M), against a plain DuckDB scan m
 
     make bench TIER=S                       # = python -m benchmarks.tiers --tier S
     python -m benchmarks.tiers --tier M --ego every:10
+    python -m benchmarks.tiers --tier S --engine polars   # also re-match with the Polars engine, same run
 
 Input. The base drives are the bundled real drives (tests/data: 92 NGSIM scenes via CommonRoad, 4 nuScenes
 scenes via ScenarioNet, 5 Argoverse 2 logs) and SUMO drives: the bundled motorway and junction runs and, when
@@ -205,6 +206,30 @@ def run_baseline(db: Path, sql_s: float) -> dict[str, object]:
     return {"baseline_s": seconds, "sql_s": sql_s, "ratio_to_baseline": seconds / sql_s, "matches": agree}
 
 
+def engine_rematch(db: Path, engine: str, ego: str, duckdb_s: float, duckdb_cpu_s: float) -> dict[str, object]:
+    """Re-match a copy of the ingested file with another engine (every drive, every scenario), timed against DuckDB's
+    re-match of the same run, and compare the outputs of GOLDEN_TABLES with DuckDB's (floats within 1e-9)."""
+    from polars.testing import assert_frame_equal
+
+    copy = db.with_name(f"{db.stem}_{engine}.duckdb")
+    shutil.copy(db, copy)
+    start, cpu = time.perf_counter(), cpu_seconds()
+    match(copy, ego=ego, force=True, engine=engine)
+    seconds, cpu_s = time.perf_counter() - start, cpu_seconds() - cpu
+    same: dict[str, str] = {}
+    with duckdb.connect(str(db), read_only=True) as a, duckdb.connect(str(copy), read_only=True) as b:
+        for name, sql in GOLDEN_TABLES.items():
+            try:
+                assert_frame_equal(b.sql(sql).pl(), a.sql(sql).pl(), check_exact=False, rel_tol=1e-9, abs_tol=1e-12)
+                same[name] = "same"
+            except AssertionError as exc:
+                same[name] = f"DIFFERENT: {str(exc).splitlines()[0]}"
+    copy.unlink()
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # run in a child process: this engine's own
+    return {"seconds": seconds, "cpu_seconds": cpu_s, "peak_rss_bytes": peak, "duckdb_seconds": duckdb_s, "duckdb_cpu_seconds": duckdb_cpu_s,
+            "ratio_to_duckdb": seconds / duckdb_s, "cpu_ratio_to_duckdb": cpu_s / duckdb_cpu_s, "outputs": same}
+
+
 def markdown(r: dict) -> str:
     lines = [f"# Tier {r['tier']}: {r['rows']:,} track rows, {r['drives']:,} drives, ego {r['ego']}", "",
              f"Measured {r['measured_at']} on {r['machine']}. Floor (plain DuckDB scan + group-by): "
@@ -223,6 +248,12 @@ def markdown(r: dict) -> str:
               f"CPU {r['rematch_cpu_s']:.1f} s.", "",
               "**Golden** (benchmarks/golden/, the outputs before the speed work): "
               + ", ".join(f"{k} {v}" for k, v in r["golden"].items()) + "."]
+    for engine, e in r.get("engines", {}).items():
+        lines += ["", f"**Re-matching with --engine {engine}** (a copy of the ingested file, every scenario, same run): "
+                  f"{e['seconds']:.1f} s, CPU {e['cpu_seconds']:.1f} s, against DuckDB's {e['duckdb_seconds']:.1f} s, "
+                  f"CPU {e['duckdb_cpu_seconds']:.1f} s: **{e['ratio_to_duckdb']:.2f}x DuckDB's wall time**, "
+                  f"{e['cpu_ratio_to_duckdb']:.2f}x its CPU; peak RSS {e['peak_rss_bytes'] / 2**30:.2f} GiB; outputs against DuckDB's: "
+                  + ", ".join(f"{k} {v}" for k, v in e["outputs"].items()) + "."]
     if r.get("baseline"):
         b = r["baseline"]
         lines += ["", f"**Per-pair baseline** (follower_vehicle + cyclist_close_to_moving_sut): {b['baseline_s']:.1f} s "
@@ -241,6 +272,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--no-baseline", action="store_true", help="skip the per-pair baseline at tier S")
     parser.add_argument("--write-golden", action="store_true",
                         help="store this run's matches, phases and KPIs as the tier's golden (benchmarks/golden/)")
+    parser.add_argument("--engine", action="append", default=[], choices=["polars"], dest="engines",
+                        help="also re-match the ingested file with this engine and compare it with DuckDB's re-match")
     args = parser.parse_args(argv)
     rows = args.rows or TIERS[args.tier]
     work = WORK / args.tier
@@ -265,6 +298,10 @@ def main(argv: list[str] | None = None) -> dict:
         start, cpu = time.perf_counter(), cpu_seconds()
         match(db, ego=args.ego, force=True)
         rematch_s, rematch_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    # another engine re-matches in a child process, so the peak memory above stays DuckDB's own
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        engines = {name: pool.apply(engine_rematch, (db, name, args.ego, rematch_s, rematch_cpu))
+                   for name in args.engines}
     floor_second = floor_s(tracks)
     floor, floor_cpu = min(floor_first, floor_second)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -291,7 +328,7 @@ def main(argv: list[str] | None = None) -> dict:
         "rematch_cpu_s": rematch_cpu,
         "floor_cpu_s": floor_cpu, "ingest_cpu_s": ingest_cpu, "match_cpu_s": match_cpu,
         "pipeline_cpu_s": ingest_cpu + match_cpu, "cpu_ratio_to_floor": (ingest_cpu + match_cpu) / floor_cpu,
-        "golden": golden_check(db, args.tier, args.write_golden),
+        "golden": golden_check(db, args.tier, args.write_golden), "engines": engines,
         "stages": {name: {"seconds": s, "rows_per_s": n / s if s > 0 else None, "ratio_to_floor": s / floor,
                           "cpu_seconds": cpus.get(name), "peak_rss_bytes": peaks.get(name, peak)}
                    for name, s in stages.items()},

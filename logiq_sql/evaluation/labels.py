@@ -584,7 +584,8 @@ def label_sumo(run_dir: str | Path, scenarios: list[str] | None = None,
         else:
             links, path_lanes, states = load_signals(run_dir)
             labels = unprotected_left_turn_with_yield_and_traffic_light(rows, links, path_lanes, states, p, dt)
-        # an episode shorter than max_gap is no event (docs/semantics.md, "gaps and jitter": the matcher keeps no shorter match)
+        # an episode shorter than max_gap is no event (docs/semantics.md, "gaps and jitter": the matcher keeps
+        # no shorter match)
         labels = labels.filter(pl.col("end_s") - pl.col("start_s") >= p["max_gap"] - EPS)
         found.append(labels.select(pl.lit(drive_id).alias("drive_id"), pl.lit(name).alias("scenario"), pl.all()))
     return pl.concat(found).cast(LABEL_SCHEMA).select(*LABEL_SCHEMA).sort(
