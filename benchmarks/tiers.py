@@ -34,6 +34,8 @@ import resource
 import shutil
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import duckdb
@@ -230,6 +232,18 @@ def engine_rematch(db: Path, engine: str, ego: str, duckdb_s: float, duckdb_cpu_
             "ratio_to_duckdb": seconds / duckdb_s, "cpu_ratio_to_duckdb": cpu_s / duckdb_cpu_s, "outputs": same}
 
 
+def engine_rematch_apart(db: Path, engine: str, ego: str, duckdb_s: float, duckdb_cpu_s: float) -> dict[str, object]:
+    """engine_rematch in a child process, so the peak memory of this process stays DuckDB's own; a child that
+    dies (the OOM killer: the Polars engine holds whole tables in memory) is reported, not waited for."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        try:
+            return pool.submit(engine_rematch, db, engine, ego, duckdb_s, duckdb_cpu_s).result()
+        except BrokenProcessPool:
+            db.with_name(f"{db.stem}_{engine}.duckdb").unlink(missing_ok=True)
+            return {"failed": "the child process died (killed by a signal: on Linux, the OOM killer when memory "
+                              "runs out; dmesg says)", "duckdb_seconds": duckdb_s}
+
+
 def markdown(r: dict) -> str:
     lines = [f"# Tier {r['tier']}: {r['rows']:,} track rows, {r['drives']:,} drives, ego {r['ego']}", "",
              f"Measured {r['measured_at']} on {r['machine']}. Floor (plain DuckDB scan + group-by): "
@@ -249,6 +263,9 @@ def markdown(r: dict) -> str:
               "**Golden** (benchmarks/golden/, the outputs before the speed work): "
               + ", ".join(f"{k} {v}" for k, v in r["golden"].items()) + "."]
     for engine, e in r.get("engines", {}).items():
+        if "failed" in e:
+            lines += ["", f"**Re-matching with --engine {engine}**: did not finish: {e['failed']}."]
+            continue
         lines += ["", f"**Re-matching with --engine {engine}** (a copy of the ingested file, every scenario, same run): "
                   f"{e['seconds']:.1f} s, CPU {e['cpu_seconds']:.1f} s, against DuckDB's {e['duckdb_seconds']:.1f} s, "
                   f"CPU {e['duckdb_cpu_seconds']:.1f} s: **{e['ratio_to_duckdb']:.2f}x DuckDB's wall time**, "
@@ -298,10 +315,7 @@ def main(argv: list[str] | None = None) -> dict:
         start, cpu = time.perf_counter(), cpu_seconds()
         match(db, ego=args.ego, force=True)
         rematch_s, rematch_cpu = time.perf_counter() - start, cpu_seconds() - cpu
-    # another engine re-matches in a child process, so the peak memory above stays DuckDB's own
-    with multiprocessing.get_context("spawn").Pool(1) as pool:
-        engines = {name: pool.apply(engine_rematch, (db, name, args.ego, rematch_s, rematch_cpu))
-                   for name in args.engines}
+    engines = {name: engine_rematch_apart(db, name, args.ego, rematch_s, rematch_cpu) for name in args.engines}
     floor_second = floor_s(tracks)
     floor, floor_cpu = min(floor_first, floor_second)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
