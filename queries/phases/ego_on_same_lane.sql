@@ -38,14 +38,32 @@ ahead as (
     where r.dx_m > 0
 ),
 
+nearest_gap as (
+    -- the road user the ego follows is the one right ahead of it in the lane: the least gap per frame (grouped
+    -- minima rather than a ranking window: a hash aggregate over the few rows in lane, not a sort of them all)
+    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    from ahead
+    where actor_ahead and actor_in_ego_lane
+    group by drive_id, ego_id, frame
+),
+
+nearest as (
+    -- of several at that least gap, the smallest actor_id
+    select a.drive_id, a.ego_id, a.frame, min(a.actor_id) as actor_id
+    from ahead as a
+    inner join nearest_gap as g
+        on a.drive_id = g.drive_id and a.ego_id = g.ego_id and a.frame = g.frame and a.lon_gap_m = g.lon_gap_m
+    where a.actor_ahead and a.actor_in_ego_lane
+    group by a.drive_id, a.ego_id, a.frame
+),
+
 ranked as (
     select
-        *,
-        -- the actor the ego follows is the road user right ahead of it in the lane
-        row_number() over (
-            partition by drive_id, ego_id, frame, actor_ahead and actor_in_ego_lane order by lon_gap_m, actor_id
-        ) as rank_ahead
-    from ahead
+        a.*,
+        n.actor_id is not null as is_nearest
+    from ahead as a
+    left join nearest as n
+        on a.drive_id = n.drive_id and a.ego_id = n.ego_id and a.frame = n.frame and a.actor_id = n.actor_id
 ),
 
 conditions as (
@@ -59,7 +77,7 @@ conditions as (
         instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
         actor_ahead,
         actor_in_ego_lane,
-        actor_ahead and actor_in_ego_lane and rank_ahead = 1 as actor_nearest,
+        actor_ahead and actor_in_ego_lane and is_nearest as actor_nearest,
         coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
             and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         actor_kind,

@@ -32,67 +32,81 @@ run_changes as (
     group by drive_id, ego_id, lane_run
 ),
 
-first_beside as (
-    -- per lane run of the ego, actor and side: the first time the actor is beside the ego on that side
-    select
-        r.drive_id,
-        r.ego_id,
-        r.actor_id,
-        el.lane_run,
-        r.adjacent_side,
-        min(r.t_s) as first_s
-    from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
-    where r.adjacent_side is not null
-    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run, r.adjacent_side
-),
-
-first_in_lane as (
-    -- per lane run of the ego and actor: the first time the actor is in the ego's (new) lane
-    select
-        r.drive_id,
-        r.ego_id,
-        r.actor_id,
-        el.lane_run,
-        min(r.t_s) as first_s
-    from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
-    where r.same_lane
-    group by r.drive_id, r.ego_id, r.actor_id, el.lane_run
-),
-
-conditions as (
+near as (
+    -- the frames at which the actor is beside the ego or in its lane, with the ego's lane run (one pass over the
+    -- relations for the three uses below)
     select
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run as segment,
-        instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
-        r.adjacent_side is not null as actor_beside,
-        coalesce(c.change_side <> r.adjacent_side, false) as ego_changed_lane_away,
-        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false)
-            and (i.first_s is null or i.first_s > r.t_s) as beside_since_change,
         r.actor_kind,
         r.adjacent_side,
-        c.change_side,
-        f.first_s - c.change_s as beside_after_change_s,
-        el.lane_id as ego_lane_id,
-        r.actor_lane_id
+        r.same_lane,
+        r.actor_lane_id,
+        el.lane_run,
+        el.lane_id as ego_lane_id
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
-    inner join run_changes as c
-        on el.drive_id = c.drive_id and el.ego_id = c.ego_id and el.lane_run = c.lane_run
-    left join first_beside as f
-        on r.drive_id = f.drive_id and r.ego_id = f.ego_id and r.actor_id = f.actor_id and el.lane_run = f.lane_run
-        and r.adjacent_side = f.adjacent_side
-    left join first_in_lane as i
-        on r.drive_id = i.drive_id and r.ego_id = i.ego_id and r.actor_id = i.actor_id and el.lane_run = i.lane_run
     where r.adjacent_side is not null or r.same_lane
+),
+
+first_beside as (
+    -- per lane run of the ego, actor and side: the first time the actor is beside the ego on that side
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        lane_run,
+        adjacent_side,
+        min(t_s) as first_s
+    from near
+    where adjacent_side is not null
+    group by drive_id, ego_id, actor_id, lane_run, adjacent_side
+),
+
+first_in_lane as (
+    -- per lane run of the ego and actor: the first time the actor is in the ego's (new) lane
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        lane_run,
+        min(t_s) as first_s
+    from near
+    where same_lane
+    group by drive_id, ego_id, actor_id, lane_run
+),
+
+conditions as (
+    select
+        n.drive_id,
+        n.ego_id,
+        n.actor_id,
+        n.frame,
+        n.t_s,
+        n.lane_run as segment,
+        instr($kinds_csv, ',' || n.actor_kind || ',') > 0 as actor_kind_ok,
+        n.adjacent_side is not null as actor_beside,
+        coalesce(c.change_side <> n.adjacent_side, false) as ego_changed_lane_away,
+        coalesce(f.first_s <= c.change_s + $max_gap_s + 1e-6, false)
+            and (i.first_s is null or i.first_s > n.t_s) as beside_since_change,
+        n.actor_kind,
+        n.adjacent_side,
+        c.change_side,
+        f.first_s - c.change_s as beside_after_change_s,
+        n.ego_lane_id,
+        n.actor_lane_id
+    from near as n
+    inner join run_changes as c
+        on n.drive_id = c.drive_id and n.ego_id = c.ego_id and n.lane_run = c.lane_run
+    left join first_beside as f
+        on n.drive_id = f.drive_id and n.ego_id = f.ego_id and n.actor_id = f.actor_id and n.lane_run = f.lane_run
+        and n.adjacent_side = f.adjacent_side
+    left join first_in_lane as i
+        on n.drive_id = i.drive_id and n.ego_id = i.ego_id and n.actor_id = i.actor_id and n.lane_run = i.lane_run
 )
 
 select

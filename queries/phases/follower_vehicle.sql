@@ -60,14 +60,33 @@ behind as (
     where r.dx_m < 0
 ),
 
+nearest_gap as (
+    -- the follower is the road user right behind the ego on its road, nobody else between them: the least gap
+    -- per frame (grouped minima rather than a ranking window: a hash aggregate over the few rows on the road,
+    -- not a sort of them all)
+    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    from behind
+    where actor_behind and actor_on_ego_road
+    group by drive_id, ego_id, frame
+),
+
+nearest as (
+    -- of several at that least gap, the smallest actor_id
+    select b.drive_id, b.ego_id, b.frame, min(b.actor_id) as actor_id
+    from behind as b
+    inner join nearest_gap as g
+        on b.drive_id = g.drive_id and b.ego_id = g.ego_id and b.frame = g.frame and b.lon_gap_m = g.lon_gap_m
+    where b.actor_behind and b.actor_on_ego_road
+    group by b.drive_id, b.ego_id, b.frame
+),
+
 ranked as (
     select
-        *,
-        -- the follower is the road user right behind the ego on its road: nobody else between them
-        row_number() over (
-            partition by drive_id, ego_id, frame, actor_behind and actor_on_ego_road order by lon_gap_m, actor_id
-        ) as rank_behind
-    from behind
+        b.*,
+        n.actor_id is not null as is_nearest
+    from behind as b
+    left join nearest as n
+        on b.drive_id = n.drive_id and b.ego_id = n.ego_id and b.frame = n.frame and b.actor_id = n.actor_id
 ),
 
 conditions as (
@@ -82,7 +101,7 @@ conditions as (
         instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
         actor_behind,
         actor_on_ego_road,
-        actor_behind and actor_on_ego_road and rank_behind = 1 as actor_nearest,
+        actor_behind and actor_on_ego_road and is_nearest as actor_nearest,
         coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
             and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         actor_kind,

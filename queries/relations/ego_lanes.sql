@@ -27,6 +27,15 @@
 --   lane_run          how many lane changes the ego made up to this frame
 with
 
+ego_lane_distances as (
+    -- the egos' rows of track_lanes (every lane within 3 m), picked out once: old_lane looks up the old lane's
+    -- distance in them
+    select tl.drive_id, tl.actor_id as ego_id, tl.frame, tl.lane_id, tl.dist_m
+    from track_lanes as tl
+    inner join egos as e
+        on tl.drive_id = e.drive_id and tl.actor_id = e.ego_id
+),
+
 ego_rows as (
     select
         t.drive_id,
@@ -136,8 +145,8 @@ old_lane as (
     from pending as p
     inner join lane_line as l
         on p.map_id = l.map_id and p.from_lane_id = l.lane_id
-    left join track_lanes as tl
-        on p.drive_id = tl.drive_id and p.ego_id = tl.actor_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
+    left join ego_lane_distances as tl
+        on p.drive_id = tl.drive_id and p.ego_id = tl.ego_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
     where p.transition_frame is not null
     group by p.drive_id, p.ego_id, p.frame, p.lane_id, p.transition_frame, p.side
 ),
