@@ -116,8 +116,11 @@ def cmd_match(args: argparse.Namespace) -> int:
         with db.open_for_write(args.db, args.wait, _say(args.quiet)) as con:  # its input tables: views over DIR
             attach(con, args.dataset)
         spark_tables = spark_tables or args.dataset  # Spark reads the dataset itself
+    # from a dataset, Spark writes the results itself under --out (logiq_sql/spark_out.py); the file gets views
+    results = args.out if args.dataset is not None and args.engine == "spark" else None
     result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
-                   drives=args.drive or None, relation_range=args.relation_range, out=args.out,
+                   drives=args.drive or None, relation_range=args.relation_range,
+                   out=None if results else args.out, results=results,
                    progress=_say(args.quiet), force=args.force, engine=args.engine,
                    spark_master=args.spark_master, spark_tables=spark_tables, wait_s=args.wait,
                    scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep)

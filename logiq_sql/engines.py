@@ -224,7 +224,8 @@ class SparkEngine(Engine):
         self.inputs[table.name] = df
         df.createOrReplaceTempView(table.name)
 
-    def _keep(self, table: str, df) -> None:
+    def keep_frame(self, table: str, df) -> None:
+        """Keep the Spark DataFrame ``df`` as the step ``table``: computed once, a temp view of that name."""
         old = self.views.pop(table, None)
         df = df.localCheckpoint(eager=True)  # later steps read it many times; plans stay short
         df.createOrReplaceTempView(table)
@@ -233,14 +234,14 @@ class SparkEngine(Engine):
             old.unpersist()
 
     def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
-        self._keep(table, self.spark.sql(spark_text(relative), args=bind(relative, values)))
+        self.keep_frame(table, self.spark.sql(spark_text(relative), args=bind(relative, values)))
 
     def frame(self, sql: str) -> pl.DataFrame:
         text = sqlglot.transpile(_as_query(sql), read="duckdb", write="spark")[0]
         return pl.from_arrow(self.spark.sql(text).toArrow())
 
     def register(self, table: str, frame: pl.DataFrame) -> None:
-        self._keep(table, self.spark.createDataFrame(frame.to_arrow(compat_level=pl.CompatLevel.oldest())))
+        self.keep_frame(table, self.spark.createDataFrame(frame.to_arrow(compat_level=pl.CompatLevel.oldest())))
 
     def select_drives(self) -> None:
         # the Parquet is partitioned by drive_id: a semi join with the batch's drives reads only their folders
@@ -272,13 +273,18 @@ class SparkEngine(Engine):
         def per_drive(rows):  # a plain function: PySpark 4.3's applyInArrow fails on a functools.partial
             return _derive_per_drive(rows, compute, columns, schema)
 
-        self._keep(table, packed.groupBy("_drive").applyInArrow(per_drive, struct))
+        self.keep_frame(table, packed.groupBy("_drive").applyInArrow(per_drive, struct))
 
     def persist(self, tables: tuple[str, ...]) -> None:
         for table in tables:
             if table in self.views:
                 _copy_into_duckdb(self.con, table, self.frame(table))
-                # the next group of the run keeps only what it computes itself
+        self.forget(tables)
+
+    def forget(self, tables: tuple[str, ...]) -> None:
+        """Drop these steps: the next group of the run keeps only what it computes itself."""
+        for table in tables:
+            if table in self.views:
                 self.views.pop(table).unpersist()
                 self.spark.catalog.dropTempView(table)
 

@@ -90,7 +90,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
           spark_master: str | None = None, spark_tables: str | Path | None = None,
           batch_rows: int = MATCH_BATCH_ROWS, scenario_path: ScenarioPath = None,
-          ego_kinds: str | None = None, wait_s: float = 0.0, keep: bool = False) -> MatchResult:
+          ego_kinds: str | None = None, wait_s: float = 0.0, keep: bool = False,
+          results: str | Path | None = None) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -118,20 +119,31 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             (default vehicle, truck, bus, motorcycle, emergency_vehicle).
         keep: also store the intermediate tables relations, passages and encroachments for analysts (ego_lanes
             is always stored); without it, any such rows an earlier run kept for these drives are removed.
+        results: with ``engine="spark"``: Spark writes the outputs itself as Parquet partitioned by scenario and
+            drive under this folder (logiq_sql/spark_out.py), and ``db_path`` gets views over them; nothing of
+            the results passes through the driver.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {}, scenario_path)
     ego_values = parse_ego(ego, ego_kinds)
     ego = ego_key(ego, ego_kinds)
     range_m = units.parse(relation_range, "length", "--relation-range")
+    if results is not None and engine != "spark":
+        raise ScenarioError("results written as a Parquet dataset by the engine need --engine spark; with another "
+                            "engine the results go into the DuckDB file (and --out exports them).")
     with db.open_for_write(db_path, wait_s, say) as con, contextlib.ExitStack() as cleanup:
         run_drives = select_run_drives(con, drives)
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
         cleanup.callback(runner.close)
         relations_of.install(con)  # the relation of any ego on demand, since relations is kept only with keep
-        ensure_kpi_columns(con, chosen)
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
+        ensure_kpi_columns(con, chosen)
+        writer = None
+        if results is not None:
+            from logiq_sql.spark_out import SparkResults
+
+            writer = SparkResults(runner, results, run_id, ego, range_m, keep)
         # scenarios that share the relation settings and the drives still to match share their relations
         groups: dict[tuple[tuple[float, float], tuple[str, ...]], list[Scenario]] = {}
         up_to_date: dict[str, int] = {}
@@ -154,13 +166,22 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
             say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m)")
-            results = []
+            if writer is not None:
+                found = writer.write_batch(group, {s.name: run_values(s, ego_values, range_m) for s in group}, batch)
+                for name, n in found.items():
+                    say(f"  {name}: {n} matches")
+                runner.forget(tuple(PERSISTED))
+                runner.release_drives()
+                continue
+            outputs = []
             for s in group:
-                results.append(run_scenario(runner, s, run_values(s, ego_values, range_m)))
-                say(f"  {s.name}: {results[-1].matches.height} matches")
+                outputs.append(run_scenario(runner, s, run_values(s, ego_values, range_m)))
+                say(f"  {s.name}: {outputs[-1].matches.height} matches")
             runner.persist(tuple(PERSISTED))
             runner.release_drives()
-            store_batch(con, run_id, ego, range_m, todo, results, keep)
+            store_batch(con, run_id, ego, range_m, todo, outputs, keep)
+        if writer is not None:
+            writer.finish(con)
         con.register("run_drives", run_drives)
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date

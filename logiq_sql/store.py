@@ -32,8 +32,11 @@ EXPORTED = ("drives", "matches", "match_phases", "kpis", "coverage", "coverage_s
 
 
 def ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]) -> None:
-    """The ``kpis`` table with a column for every KPI and coverage value of ``scenarios`` (typed as declared)."""
+    """The ``kpis`` table with a column for every KPI and coverage value of ``scenarios`` (typed as declared).
+    Nothing to do where ``kpis`` is a view over the Parquet of a Spark run (logiq_sql/spark_out.py)."""
     con.execute("create table if not exists kpis (match_id varchar not null, scenario varchar not null)")
+    if con.execute("select count(*) from duckdb_views() where view_name = 'kpis' and not temporary").fetchall()[0][0]:
+        return
     con.execute("comment on table kpis is 'One row per match: every KPI and sampled coverage value of its scenario, in the spec''s "
                 "units (column suffix); NULL where the scenario does not record that KPI or the value is undefined.'")
     con.execute("comment on column kpis.match_id is 'Match (matches.match_id).'")

@@ -79,7 +79,8 @@ OUTPUTS = {  # table -> sort key (every output table the matcher writes, except 
 
 def read_output(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame | None:
     with duckdb.connect(str(db), read_only=True) as con:
-        have = {r[0] for r in con.execute("select table_name from duckdb_tables()").fetchall()}
+        # tables, or views over the Parquet a Spark run wrote (logiq_sql/spark_out.py)
+        have = {r[0] for r in con.execute("select table_name from information_schema.tables").fetchall()}
         if table not in have:
             return None
         # run_id is the time of the run: the two runs differ in it by construction
@@ -150,6 +151,66 @@ def test_spark_matches_duckdb_on_a_simulated_junction(spark, tmp_path_factory):
     assert read_output(duck, "matches").height > 0
     assert_same_outputs(duck, spark_db, {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"],
                                   "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]})
+
+
+def test_spark_writes_the_results_of_a_dataset_itself(spark, tmp_path, monkeypatch, capsys):
+    """``match --engine spark --dataset DIR --out OUT``: Spark writes every output table as Parquet partitioned by
+    scenario and drive (logiq_sql/spark_out.py), nothing of the results comes back to the driver, and the views
+    in OUT/logiq.duckdb give DuckDB's results. A rerun replaces partitions (no duplicates); a drive added to the
+    dataset later is matched alone, incrementally."""
+    from logiq_sql.cli import EXIT_OK, main
+    from logiq_sql.engines import SparkEngine
+
+    cr, nu = DATA / "commonroad_ngsim/scenarios_2018b", DATA / "nuscenes_mini_scenarionet"
+    first = [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"])]
+    later = ("scenarionet", [nu / "sd_nuscenes_v1.0-mini_scene-0103.pkl"])
+    args = ["--scenario", "follower_vehicle", "--scenario", "sut_cut_out", "--scenario",
+            "cyclist_close_to_moving_sut", "--ego", "every:4", "--set", "max_distance_from_cyclist=6m", "--keep",
+            "--quiet"]
+    dataset, out = tmp_path / "dataset", tmp_path / "out"
+    asked = []  # every query the driver collected: only counts for the progress lines may come back
+    collect = SparkEngine.frame
+    monkeypatch.setattr(SparkEngine, "frame", lambda self, sql: asked.append(sql) or collect(self, sql))
+    monkeypatch.setattr("logiq_sql.engines._copy_into_duckdb", lambda *a: pytest.fail("a table came to the driver"))
+
+    def both(ingests, *extra) -> Path:
+        duck = tmp_path / f"duck_{len(ingests)}.duckdb"
+        for fmt, paths in ingests:
+            ingest(fmt, paths, duck)
+            assert main(["ingest", fmt, *map(str, paths), "--dataset", str(dataset), "--quiet"]) == EXIT_OK
+        match(duck, scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], ego="every:4",
+              overrides={"max_distance_from_cyclist": "6m"}, keep=True)
+        assert main(["match", "--dataset", str(dataset), "--out", str(out), "--engine", "spark", *args,
+                     *extra]) == EXIT_OK
+        return duck
+
+    duck = both(first)
+    kept = {**OUTPUTS, "passages": ["drive_id", "actor_id", "passage"]}
+    assert_same_outputs(duck, out / "logiq.duckdb", kept)
+    assert asked and all(re.fullmatch(r"select count\(\*\) as n from relations", q) for q in asked), asked
+    # Spark's own part files, one folder per scenario and drive
+    parts = sorted(p.relative_to(out / "matches").parts[:2] for p in (out / "matches").rglob("part-*.parquet"))
+    assert ("scenario=follower_vehicle", "drive_id=USA_US101-22_1_T-1@2018b") in parts, parts
+    assert (out / "matches" / "_SUCCESS").is_file()
+    with duckdb.connect(str(out / "logiq.duckdb"), read_only=True) as con:
+        kinds = dict(con.execute("select table_name, table_type from information_schema.tables "
+                                 "where table_name in ('matches', 'kpis', 'tracks')").fetchall())
+        assert kinds == {"matches": "VIEW", "kpis": "VIEW", "tracks": "VIEW"}, kinds
+        before = con.execute("select count(*) from matches").fetchone()[0]
+
+    # --force reruns: every partition replaced, none doubled
+    assert main(["match", "--dataset", str(dataset), "--out", str(out), "--engine", "spark", *args,
+                 "--force"]) == EXIT_OK
+    assert_same_outputs(duck, out / "logiq.duckdb", kept)
+    with duckdb.connect(str(out / "logiq.duckdb"), read_only=True) as con:
+        assert con.execute("select count(*) from matches").fetchone()[0] == before
+        assert con.execute("select count(distinct run_id) from match_runs").fetchone()[0] == 2
+
+    # a drive added later: only it is matched, and the whole equals DuckDB's results over both drives
+    capsys.readouterr()
+    duck = both([*first, later])
+    assert "already up to date" in capsys.readouterr().out
+    assert_same_outputs(duck, out / "logiq.duckdb", kept)
 
 
 @pytest.fixture(scope="module")
