@@ -12,7 +12,8 @@ and the session adds it as a ``.zip`` Python file (``addPyFile``; Spark puts onl
 Python path, and a pure-Python wheel is a zip). The executors' Python (``$PYSPARK_PYTHON``) is this venv's,
 which holds the dependencies (docs/engines.md: packing them for a cluster). The test checks that the executors
 imported logiq_sql from the shipped zip, and that both workers' executors ran tasks (their own logs). The SUMO
-drive is read from a dataset written by ``ingest --dataset`` (the executors read its Parquet themselves)."""
+drive goes from Parquet to Parquet: read from a dataset written by ``ingest --dataset`` (the executors read it
+themselves), its results written by the executors under ``--out`` (logiq_sql/spark_out.py)."""
 
 from __future__ import annotations
 
@@ -27,8 +28,8 @@ from pathlib import Path
 import pytest
 from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, match_both, read_output, twin_files
 
-from logiq_sql import db, ingest
-from logiq_sql.dataset import attach
+from logiq_sql import ingest, match
+from logiq_sql.cli import EXIT_OK, main
 from logiq_sql.dataset_ingest import ingest_dataset
 
 pytestmark = pytest.mark.spark_cluster
@@ -179,20 +180,23 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
     assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
     assert_same_outputs(duck, spark_db)
 
-    # the SUMO junction from a Parquet dataset (ingest --dataset), which the executors read themselves; the
-    # encroachment areas (shapely) run per drive on the executors (SparkEngine.derive)
+    # the SUMO junction from Parquet to Parquet: a dataset (ingest --dataset) the executors read themselves, the
+    # encroachment areas (shapely) per drive on the executors (SparkEngine.derive), and the results written by
+    # the executors as Parquet partitioned by scenario and drive (logiq_sql/spark_out.py)
     sumo = [DATA / "sumo/junction_s1"]
-    duck, spark_db, folder = tmp_path / "sumo.duckdb", tmp_path / "sumo_views.duckdb", tmp_path / "sumo_dataset"
+    duck, folder, out = tmp_path / "sumo.duckdb", tmp_path / "sumo_dataset", tmp_path / "sumo_out"
     ingest("sumo", sumo, duck)
     ingest_dataset("sumo", sumo, folder)
-    with db.connect(spark_db) as con:
-        attach(con, folder)
-    match_both(duck, spark_db, spark_master=url, spark_tables=str(folder), scenarios=[LEFT_TURN], ego="every:40")
+    match(duck, scenarios=[LEFT_TURN], ego="every:40", keep=True)
+    assert main(["match", "--dataset", str(folder), "--out", str(out), "--engine", "spark", "--spark-master", url,
+                 "--scenario", LEFT_TURN, "--ego", "every:40", "--keep", "--quiet"]) == EXIT_OK
     kept = {"passages": ["drive_id", "actor_id", "passage"],
             "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]}
     assert read_output(duck, "matches").height > 0
     assert read_output(duck, "encroachments", kept["encroachments"]).height > 0
-    assert_same_outputs(duck, spark_db, {**OUTPUTS, **kept})
+    assert_same_outputs(duck, out / "logiq.duckdb", {**OUTPUTS, **kept})
+    written = {p.relative_to(out).parts[0] for p in out.rglob("part-*.parquet")}
+    assert {"matches", "match_phases", "kpis", "coverage", "encroachments"} <= written, written
 
     ran = _executor_task_lines(works)
     print(f"\ntasks run by the executors of each worker: {ran}")
