@@ -208,24 +208,32 @@ def run_baseline(db: Path, sql_s: float) -> dict[str, object]:
     return {"baseline_s": seconds, "sql_s": sql_s, "ratio_to_baseline": seconds / sql_s, "matches": agree}
 
 
-def engine_rematch(db: Path, engine: str, ego: str, duckdb_s: float, duckdb_cpu_s: float) -> dict[str, object]:
-    """Re-match a copy of the ingested file with another engine (every drive, every scenario), timed against DuckDB's
-    re-match of the same run, and compare the outputs of GOLDEN_TABLES with DuckDB's (floats within 1e-9)."""
+def outputs_against(reference: Path, other: Path) -> dict[str, str]:
+    """``same`` or the first difference, per table of GOLDEN_TABLES, of ``other``'s outputs against ``reference``'s
+    (floats within 1e-9 relative: another engine's sums and cos/sin may differ in the last bits)."""
     from polars.testing import assert_frame_equal
 
-    copy = db.with_name(f"{db.stem}_{engine}.duckdb")
-    shutil.copy(db, copy)
-    start, cpu = time.perf_counter(), cpu_seconds()
-    match(copy, ego=ego, force=True, engine=engine)
-    seconds, cpu_s = time.perf_counter() - start, cpu_seconds() - cpu
     same: dict[str, str] = {}
-    with duckdb.connect(str(db), read_only=True) as a, duckdb.connect(str(copy), read_only=True) as b:
+    with duckdb.connect(str(reference), read_only=True) as a, duckdb.connect(str(other), read_only=True) as b:
         for name, sql in GOLDEN_TABLES.items():
             try:
                 assert_frame_equal(b.sql(sql).pl(), a.sql(sql).pl(), check_exact=False, rel_tol=1e-9, abs_tol=1e-12)
                 same[name] = "same"
             except AssertionError as exc:
                 same[name] = f"DIFFERENT: {str(exc).splitlines()[0]}"
+    return same
+
+
+def engine_rematch(db: Path, engine: str, ego: str, duckdb_s: float, duckdb_cpu_s: float) -> dict[str, object]:
+    """Re-match a copy of the ingested file with another engine (every drive, every scenario), timed against DuckDB's
+    re-match of the same run, and compare the outputs of GOLDEN_TABLES with DuckDB's (floats within 1e-9)."""
+
+    copy = db.with_name(f"{db.stem}_{engine}.duckdb")
+    shutil.copy(db, copy)
+    start, cpu = time.perf_counter(), cpu_seconds()
+    match(copy, ego=ego, force=True, engine=engine)
+    seconds, cpu_s = time.perf_counter() - start, cpu_seconds() - cpu
+    same = outputs_against(db, copy)
     copy.unlink()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # run in a child process: this engine's own
     return {"seconds": seconds, "cpu_seconds": cpu_s, "peak_rss_bytes": peak, "duckdb_seconds": duckdb_s, "duckdb_cpu_seconds": duckdb_cpu_s,

@@ -49,6 +49,10 @@ from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
 # drives are matched in batches of about this many track rows, each stored in its own transaction: memory stays
 # bounded whatever the file holds (at 50 M rows one pass over every drive ran out of DuckDB's 4 GB)
 MATCH_BATCH_ROWS = 2_000_000
+# when Spark writes the results itself nothing of a batch is held on the driver and the executors spill: batches
+# only bound a killed run's loss, while every batch pays Spark's fixed cost per step (a job per checkpointed step,
+# about 1-9 s each), so they are much larger
+SPARK_RESULTS_BATCH_ROWS = 100_000_000
 
 
 @dataclass
@@ -89,7 +93,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
           spark_master: str | None = None, spark_tables: str | Path | None = None,
-          batch_rows: int = MATCH_BATCH_ROWS, scenario_path: ScenarioPath = None,
+          batch_rows: int | None = None, scenario_path: ScenarioPath = None,
           ego_kinds: str | None = None, wait_s: float = 0.0, keep: bool = False,
           results: str | Path | None = None) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
@@ -111,7 +115,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         spark_tables: folder the canonical tables are written to as Parquet for Spark (default: a temporary one).
         batch_rows: match the drives in batches of about this many track rows (a drive is never split); each
             batch is stored in its own transaction, so a killed run keeps the batches it finished (in its copy of
-            the file, taken up by the next run).
+            the file, taken up by the next run). Default MATCH_BATCH_ROWS; SPARK_RESULTS_BATCH_ROWS when Spark
+            writes the results itself (``results``).
         wait_s: how long to wait for another run writing the file (``db.open_for_write``; the results are
             published to readers when the run completes).
         scenario_path: a folder of the user's own scenarios (and their SQL), besides the built-in ones.
@@ -128,6 +133,8 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
     ego_values = parse_ego(ego, ego_kinds)
     ego = ego_key(ego, ego_kinds)
     range_m = units.parse(relation_range, "length", "--relation-range")
+    if batch_rows is None:
+        batch_rows = SPARK_RESULTS_BATCH_ROWS if results is not None else MATCH_BATCH_ROWS
     if results is not None and engine != "spark":
         raise ScenarioError("results written as a Parquet dataset by the engine need --engine spark; with another "
                             "engine the results go into the DuckDB file (and --out exports them).")
