@@ -25,14 +25,11 @@ import platform
 import shutil
 import time
 
-import duckdb
-
 from benchmarks.cluster import project_zip, session, standalone
 from benchmarks.tiers import RESULTS, TIERS, WORK, outputs_against, prepare
-from logiq_sql.dataset import attach
 from logiq_sql.dataset_ingest import ingest_dataset
 from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
+from logiq_sql.match import match, match_dataset
 from logiq_sql.timing import cpu_seconds
 
 
@@ -108,16 +105,12 @@ def main(argv: list[str] | None = None) -> dict:
         with standalone(work / f"cluster_{workers}", workers, memory=args.worker_memory) as (url, _):
             spark = session(url, shipped, workers, executor_memory=args.executor_memory, driver_memory="4g")
             try:
-                views = out / "logiq.duckdb"
-                views.parent.mkdir(parents=True)
-                with duckdb.connect(str(views)) as con:
-                    attach(con, dataset)
-                seconds, cpu = timed(lambda: match(views, ego=args.ego, engine="spark", spark_master=url,
-                                                   spark_tables=dataset, results=out))
+                seconds, cpu = timed(lambda: match_dataset(dataset, out, ego=args.ego, engine="spark",
+                                                           spark_master=url))
             finally:
                 spark.stop()
         report["spark"].append({"workers": workers, "seconds": seconds, "cpu_seconds": cpu, "load_after": load(),
-                                "outputs": outputs_against(reference, views)})
+                                "outputs": outputs_against(reference, out / "logiq.duckdb")})
         print(f"{workers} worker(s): {seconds:.1f} s")
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.tier}_spark.json").write_text(json.dumps(report, indent=2))

@@ -22,12 +22,13 @@ from logiq_sql.frames import match_frames as match_frames
 from logiq_sql.ingestion import ingest as ingest
 from logiq_sql.match import MatchResult as MatchResult
 from logiq_sql.match import match as match
+from logiq_sql.match import match_dataset as match_dataset
 from logiq_sql.match import render as render
 from logiq_sql.scenario import list_scenarios as list_scenarios
 from logiq_sql.scenario import load_scenario as load_scenario
 
 __all__ = [
     "FramesResult", "InputError", "LogiqError", "MatchResult", "ScenarioError", "UnitError", "connect", "ingest",
-    "list_scenarios", "load_scenario", "match", "match_frames", "render",
+    "list_scenarios", "load_scenario", "match", "match_dataset", "match_frames", "render",
 ]
 __version__ = "0.1.0"

@@ -102,28 +102,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_match(args: argparse.Namespace) -> int:
-    from logiq_sql.match import match
+    from logiq_sql.match import match, match_dataset
 
     if args.db is None and not (args.dataset and args.out):
         raise LogiqError("match: give --db FILE, or --dataset DIR with --out DIR (the results file is then "
                          "OUT/logiq.duckdb).")
-    spark_tables = args.spark_tables
-    if args.dataset is not None:
-        from logiq_sql import db
-        from logiq_sql.dataset import attach
-
-        args.db = args.db or str(Path(args.out) / "logiq.duckdb")
-        with db.open_for_write(args.db, args.wait, _say(args.quiet)) as con:  # its input tables: views over DIR
-            attach(con, args.dataset)
-        spark_tables = spark_tables or args.dataset  # Spark reads the dataset itself
-    # from a dataset, Spark writes the results itself under --out (logiq_sql/spark_out.py); the file gets views
-    results = args.out if args.dataset is not None and args.engine == "spark" else None
-    result = match(args.db, scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
-                   drives=args.drive or None, relation_range=args.relation_range,
-                   out=None if results else args.out, results=results,
-                   progress=_say(args.quiet), force=args.force, engine=args.engine,
-                   spark_master=args.spark_master, spark_tables=spark_tables, wait_s=args.wait,
-                   scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep)
+    common = dict(scenarios=args.scenario or None, ego=args.ego, overrides=_set_pairs(args.set),
+                  drives=args.drive or None, relation_range=args.relation_range, progress=_say(args.quiet),
+                  force=args.force, engine=args.engine, spark_master=args.spark_master, wait_s=args.wait,
+                  scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep)
+    if args.dataset is not None:  # with --engine spark, Spark writes the results itself under --out
+        result = match_dataset(args.dataset, args.out, args.db, spark_tables=args.spark_tables or args.dataset,
+                               **common)
+    else:
+        result = match(args.db, out=args.out, spark_tables=args.spark_tables, **common)
     print(result.summary())
     if args.out:
         print(f"Parquet written to {Path(args.out).resolve()}")

@@ -197,6 +197,23 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         return result
 
 
+def match_dataset(dataset: str | Path, out: str | Path, db_path: str | Path | None = None, engine: str = "duckdb",
+                  wait_s: float = 0.0, progress: Callable[[str], None] | None = None, **kwargs) -> MatchResult:
+    """Match a Parquet dataset (``ingest --dataset``): the results file ``db_path`` (default ``out/logiq.duckdb``)
+    gets views over the dataset, and the results go to ``out``: with ``engine="spark"`` Spark writes them itself
+    as Parquet there (logiq_sql/spark_out.py) and the file gets views over them; with another engine they are
+    stored in the file and exported to ``out``. ``kwargs`` are ``match``'s."""
+    from logiq_sql.dataset import attach
+
+    db_path = Path(db_path) if db_path is not None else Path(out) / "logiq.duckdb"
+    with db.open_for_write(db_path, wait_s, progress) as con:  # its input tables: views over the dataset
+        attach(con, dataset)
+    kwargs.setdefault("spark_tables", dataset)  # Spark reads the dataset itself
+    spark = engine == "spark"
+    return match(db_path, engine=engine, wait_s=wait_s, progress=progress, out=None if spark else out,
+                 results=out if spark else None, **kwargs)
+
+
 def select_run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) -> pl.DataFrame:
     known = con.sql("select drive_id from drive_inputs order by drive_id").pl()
     if drives:
