@@ -110,6 +110,10 @@ class DuckEngine(Engine):
         # rows: a batch then costs what its drives hold, not what the whole file holds (at 10 M rows, queries
         # reading the whole track_lanes per batch made matching grow with batches x file size)
         stored = stored_schema(self.con)
+        (others,) = self.con.execute(f"select count(*) from {stored}.drive_inputs where status = 'ingested' and "
+                                     "drive_id not in (select drive_id from run_drives)").fetchall()[0]
+        if not others:  # the batch is every drive of the file: its tables already hold just the batch's rows
+            return
         for table in PARTITIONED_BY_DRIVE:
             self.con.execute(f"create or replace temp table {table} as select * from {stored}.{table} "
                              "where drive_id in (select drive_id from run_drives)")
