@@ -98,7 +98,7 @@ def test_actor_crossing_a_segment_boundary_while_the_ego_is_beside_it(tmp_path):
 
 
 def test_lateral_motion_is_measured_against_the_lanes_not_a_straight_line(tmp_path):
-    # the road bends right by 2 degrees (both lanes drop by K metres per metre of x); the actor follows the right
+    # the road bends right by 2 degrees (both lanes drop by k metres per metre of x); the actor follows the right
     # lane's centre, the ego drives a straight line 25 m behind it and so drifts into the left lane (its centre
     # crosses the line at x = 50 m, t = 2.5 s). Against the lanes that is the ego's cut-out (NGSIM US101-3_1, ego
     # 394 / actor 388, docs/evaluation.md), although in a frame along the ego's line only the actor moves sideways
