@@ -20,10 +20,9 @@
 --                        the one that follows the ego; a car behind it follows it, not the ego
 --   headway_in_range     follow_headway_s (follow_gap_m / actor speed) in [min_distance_from_sut_in_time_units,
 --                        max_distance_from_sut_in_time_units]
--- follow_gap_m = greatest(lon_gap_m, box_distance_m): the gap along the ego's heading, unless the two boxes are
--- farther apart than that. They are when the ego has turned off the road the actor is still on (a turn at a
--- junction): the projection on the ego's new heading then shrinks a 100 m gap along the road to a few metres,
--- while the straight-line distance between the boxes stays a lower bound of the gap along the road.
+-- follow_gap_m = greatest(lon_gap_m + lat_gap_m, box_distance_m): an L-shaped path along the ego's axes (lon_gap
+-- alone for two cars in line). After the ego turns at a junction, the projection on its new heading alone shrinks
+-- a 100 m gap along the road to a few metres; the road runs from the approach round the corner.
 -- segment = the ego's lane run: "The Ego drives in one lane", so a run never spans a lane change of the ego.
 with
 
@@ -69,8 +68,8 @@ behind as (
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
-        greatest(r.lon_gap_m, r.box_distance_m) as follow_gap_m,
-        case when a.speed_mps > 0 then greatest(r.lon_gap_m, r.box_distance_m) / a.speed_mps end
+        greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) as follow_gap_m,
+        case when a.speed_mps > 0 then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / a.speed_mps end
             as follow_headway_s,
         r.lon_gap_m > 0 as actor_behind,
         coalesce(
