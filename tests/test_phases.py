@@ -147,6 +147,23 @@ def test_the_gap_to_a_follower_is_not_shrunk_by_the_ego_s_turn(tmp_path):
     assert run(make_db(tmp_path, [ego, behind], lanes), FOLLOWER) == []
 
 
+def test_the_gap_to_a_follower_behind_a_turn_runs_round_the_corner(tmp_path):
+    t = times(8.0)
+    # as above, the actor now 60 m behind at 9 m/s. After the ego's turn the road from the actor to the ego runs
+    # west-east then south-north: at t = 5 s about 32 m + 28 m, a 6 s headway (no follower), while the straight
+    # line between the boxes (about 38 m, 4.2 s) would make it one from about 4 s on
+    north = dict(lane("N", 0.0), lane_id="N",
+                 polygon_wkt="POLYGON ((150 0, 153.5 0, 153.5 2000, 150 2000, 150 0))",
+                 centerline_wkt="LINESTRING (151.75 0, 151.75 2000)")
+    along = 130 + 10 * t
+    ego = actor("ego", t, np.minimum(along, 151.75), Y1 + np.maximum(along - 151.75, 0.0), is_ego=True)
+    behind = actor("f", t, 70 + 9 * t, Y1)
+    db = make_db(tmp_path, [ego, behind], [lane("A", 0.0, 0.0, 150.0), north])
+    assert run(db, FOLLOWER) == []
+    # with a 7 s maximum headway it is one: what rejects it is the headway along that path
+    assert run(db, FOLLOWER, overrides={"max_distance_from_sut_in_time_units": "7sec"}) == [("ego", "f", 0.0, 8.0)]
+
+
 # --- cyclist_close_to_moving_sut --------------------------------------------------------------------------
 
 def cyclist_at(t, x, y):
