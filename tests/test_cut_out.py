@@ -95,3 +95,29 @@ def test_actor_crossing_a_segment_boundary_while_the_ego_is_beside_it(tmp_path):
     # actor is on B1 while the ego is still on A2, which is still beside it
     db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2)), *split_road(190.0))
     assert intervals(match(db, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.0, 8.1)]
+
+
+def test_lateral_motion_is_measured_against_the_lanes_not_a_straight_line(tmp_path):
+    # the road bends right by 2 degrees (both lanes drop by k metres per metre of x); the actor follows the right
+    # lane's centre, the ego drives a straight line 25 m behind it and so drifts into the left lane (its centre
+    # crosses the line at x = 50 m, t = 2.5 s). Against the lanes that is the ego's cut-out (NGSIM US101-3_1, ego
+    # 394 / actor 388, docs/evaluation.md), although in a frame along the ego's line only the actor moves sideways
+    k = np.tan(np.radians(2.0))
+
+    def bent(lane_id, y0, **side):
+        d = lane(lane_id, y0, 0.0, 400.0, **side)
+        d["polygon_wkt"] = (f"POLYGON ((0 {y0}, 400 {y0 - 400 * k}, 400 {y0 + LANE_W - 400 * k}, "
+                            f"0 {y0 + LANE_W}, 0 {y0}))")
+        d["centerline_wkt"] = f"LINESTRING (0 {y0 + LANE_W / 2}, 400 {y0 + LANE_W / 2 - 400 * k})"
+        return d
+
+    t = times(8.0)
+    x_ego, x_npc = 20 * t, 25 + 20 * t
+    lanes = [bent("R", 0.0, left="L"), bent("L", LANE_W, right="R")]
+    db = make_db(tmp_path, [actor("ego", t, x_ego, Y1, is_ego=True), actor("npc", t, x_npc, Y1 - k * x_npc)], lanes)
+    result = match(db, scenarios=[CUT_OUT])
+    # on the line at 2.5 s (a tie keeps the right lane): the change is dated 2.6 s, phase 2 keeps its first 3 s
+    assert intervals(result.matches, CUT_OUT) == [("ego", "npc", 0.0, 5.6)]
+    phases = result.match_phases.sort("phase_index")
+    assert [(r[0], round(r[1], 3), round(r[2], 3)) for r in phases.select("phase", "start_s", "end_s").rows()] == [
+        ("ego_on_same_lane", 0.0, 2.5), ("ego_side_of_npc", 2.6, 5.6)]

@@ -121,6 +121,49 @@ def test_same_road_limit_uses_the_lanes_the_ego_drove_in(tmp_path):
     assert m[2] == 0.0 and 2.9 <= m[3] <= 3.3
 
 
+def test_a_car_on_another_approach_to_the_ego_s_lane_is_not_its_follower(tmp_path):
+    t = times(6.0)
+    # two approaches, A and B (20 m to its left), both lead into X at x = 150; the ego drives A then X (from
+    # t = 2 s), the actor stays on B, 30 m behind: B is a predecessor of X, but not a lane the ego drove
+    lanes = [lane("A", 0.0, 0.0, 150.0), lane("B", 20.0, 0.0, 150.0), lane("X", 0.0, 150.0, 2000.0)]
+    links = [dict(map_id="road", lane_id=a, successor_id="X", turn=None) for a in ("A", "B")]
+    ego = actor("ego", t, 130 + 10 * t, Y1, is_ego=True)
+    other = actor("b", t, 100 + 10 * t, 20.0 + Y1)
+    assert run(make_db(tmp_path, [ego, other], lanes, successors=links), FOLLOWER) == []
+
+
+def test_the_gap_to_a_follower_is_not_shrunk_by_the_ego_s_turn(tmp_path):
+    t = times(6.0)
+    # the ego drives east on A, turns north at x = 151.75 (t = 2.175 s) onto N; the actor stays on A, 100 m
+    # behind (a 9.5 s headway). After the turn the actor is a few metres behind the ego along its new heading,
+    # but 100 m away: the gap is the distance between the boxes, and no follower
+    north = dict(lane("N", 0.0), lane_id="N",
+                 polygon_wkt="POLYGON ((150 0, 153.5 0, 153.5 2000, 150 2000, 150 0))",
+                 centerline_wkt="LINESTRING (151.75 0, 151.75 2000)")
+    lanes = [lane("A", 0.0, 0.0, 150.0), north]
+    along = 130 + 10 * t
+    ego = actor("ego", t, np.minimum(along, 151.75), Y1 + np.maximum(along - 151.75, 0.0), is_ego=True)
+    behind = actor("f", t, 30 + 10 * t, Y1)
+    assert run(make_db(tmp_path, [ego, behind], lanes), FOLLOWER) == []
+
+
+def test_the_gap_to_a_follower_behind_a_turn_runs_round_the_corner(tmp_path):
+    t = times(8.0)
+    # as above, the actor now 60 m behind at 9 m/s. After the ego's turn the road from the actor to the ego runs
+    # west-east then south-north: at t = 5 s about 32 m + 28 m, a 6 s headway (no follower), while the straight
+    # line between the boxes (about 38 m, 4.2 s) would make it one from about 4 s on
+    north = dict(lane("N", 0.0), lane_id="N",
+                 polygon_wkt="POLYGON ((150 0, 153.5 0, 153.5 2000, 150 2000, 150 0))",
+                 centerline_wkt="LINESTRING (151.75 0, 151.75 2000)")
+    along = 130 + 10 * t
+    ego = actor("ego", t, np.minimum(along, 151.75), Y1 + np.maximum(along - 151.75, 0.0), is_ego=True)
+    behind = actor("f", t, 70 + 9 * t, Y1)
+    db = make_db(tmp_path, [ego, behind], [lane("A", 0.0, 0.0, 150.0), north])
+    assert run(db, FOLLOWER) == []
+    # with a 7 s maximum headway it is one: what rejects it is the headway along that path
+    assert run(db, FOLLOWER, overrides={"max_distance_from_sut_in_time_units": "7sec"}) == [("ego", "f", 0.0, 8.0)]
+
+
 # --- cyclist_close_to_moving_sut --------------------------------------------------------------------------
 
 def cyclist_at(t, x, y):

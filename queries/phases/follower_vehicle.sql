@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes
+-- reads: relations, ego_lanes, tracks
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -11,12 +11,18 @@
 --   actor_kind_ok        the actor is of one of the kinds
 --   actor_behind         entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor alongside, or
 --                        overlapping the ego, is not following it)
---   actor_on_ego_road    the actor's lane is the ego's lane or its direct predecessor/successor (same_lane), or
---                        a lane the ego drove in during the last same_road_limit seconds of its lane run
---   actor_nearest        it is the nearest road user (any kind) behind the ego on its road: the one that
---                        follows the ego; a car behind it follows it, not the ego
---   headway_in_range     time headway (gap / actor speed) in [min_distance_from_sut_in_time_units,
+--   actor_on_ego_road    the actor's lane is the ego's lane, or a lane the ego drove in during the last
+--                        same_road_limit seconds of its lane run, or (while the ego is still in the first lane of
+--                        its lane run, so where it came from is unknown) its direct predecessor/successor
+--                        (same_lane). Once the ego has left a lane, a predecessor it did not drive is another
+--                        road: behind a junction every approach is a predecessor of the exit lane
+--   actor_nearest        it is the nearest road user (any kind) behind the ego on its road, by follow_gap_m:
+--                        the one that follows the ego; a car behind it follows it, not the ego
+--   headway_in_range     follow_headway_s (follow_gap_m / actor speed) in [min_distance_from_sut_in_time_units,
 --                        max_distance_from_sut_in_time_units]
+-- follow_gap_m = greatest(lon_gap_m + lat_gap_m, box_distance_m): an L-shaped path along the ego's axes (lon_gap
+-- alone for two cars in line). After the ego turns at a junction, the projection on its new heading alone shrinks
+-- a 100 m gap along the road to a few metres; the road runs from the approach round the corner.
 -- segment = the ego's lane run: "The Ego drives in one lane", so a run never spans a lane change of the ego.
 with
 
@@ -34,6 +40,22 @@ road as (
     group by drive_id, ego_id, lane_run, lane_id
 ),
 
+run_first_lane as (
+    -- the lane each lane run began in (its first frame in a lane)
+    select drive_id, ego_id, lane_run, lane_id
+    from (
+        select
+            drive_id,
+            ego_id,
+            lane_run,
+            lane_id,
+            row_number() over (partition by drive_id, ego_id, lane_run order by frame) as nth
+        from ego_lanes
+        where lane_id is not null
+    ) as numbered
+    where nth = 1
+),
+
 behind as (
     select
         r.drive_id,
@@ -46,12 +68,23 @@ behind as (
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
-        r.time_headway_s,
+        greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) as follow_gap_m,
+        case when a.speed_mps > 0 then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / a.speed_mps end
+            as follow_headway_s,
         r.lon_gap_m > 0 as actor_behind,
-        coalesce(r.same_lane or road.lane_id is not null, false) as actor_on_ego_road
+        coalesce(
+            r.actor_lane_id = el.lane_id
+            or road.lane_id is not null
+            or (r.same_lane and fl.lane_id = el.lane_id),
+            false
+        ) as actor_on_ego_road
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    inner join tracks as a
+        on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
+    left join run_first_lane as fl
+        on el.drive_id = fl.drive_id and el.ego_id = fl.ego_id and el.lane_run = fl.lane_run
     left join road
         on r.drive_id = road.drive_id and r.ego_id = road.ego_id and el.lane_run = road.lane_run
         and r.actor_lane_id = road.lane_id
@@ -64,7 +97,7 @@ nearest_gap as (
     -- the follower is the road user right behind the ego on its road, nobody else between them: the least gap
     -- per frame (grouped minima rather than a ranking window: a hash aggregate over the few rows on the road,
     -- not a sort of them all)
-    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    select drive_id, ego_id, frame, min(follow_gap_m) as follow_gap_m
     from behind
     where actor_behind and actor_on_ego_road
     group by drive_id, ego_id, frame
@@ -75,7 +108,7 @@ nearest as (
     select b.drive_id, b.ego_id, b.frame, min(b.actor_id) as actor_id
     from behind as b
     inner join nearest_gap as g
-        on b.drive_id = g.drive_id and b.ego_id = g.ego_id and b.frame = g.frame and b.lon_gap_m = g.lon_gap_m
+        on b.drive_id = g.drive_id and b.ego_id = g.ego_id and b.frame = g.frame and b.follow_gap_m = g.follow_gap_m
     where b.actor_behind and b.actor_on_ego_road
     group by b.drive_id, b.ego_id, b.frame
 ),
@@ -102,13 +135,14 @@ conditions as (
         actor_behind,
         actor_on_ego_road,
         actor_behind and actor_on_ego_road and is_nearest as actor_nearest,
-        coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
-            and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
+        coalesce(follow_headway_s >= $min_distance_from_sut_in_time_units_s
+            and follow_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         actor_kind,
         ego_lane_id,
         actor_lane_id,
         lon_gap_m,
-        time_headway_s
+        follow_gap_m,
+        follow_headway_s
     from ranked
 )
 
