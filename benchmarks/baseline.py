@@ -6,7 +6,7 @@ Inputs, read from a file that ``match`` has run on: tracks, track_lanes, lanes, 
 drive_inputs and the ego's lane per frame (``ego_lanes``: lane runs with the lane-change tolerance, the one
 piece taken from logiq_sql, since lane-change detection is not what is compared). Everything else is computed
 here, per pair: the actor's lane, the ego-frame geometry, bumper gaps, box distance, headway, the lane and
-road tests, the nearest follower, islands and duration rules, with the formulas of docs/semantics.md.
+road tests, the follow gap, the nearest follower, islands and duration rules, with the formulas of docs/semantics.md.
 """
 
 from __future__ import annotations
@@ -58,8 +58,8 @@ def _geometry(e: pd.DataFrame, a: pd.DataFrame) -> dict[str, np.ndarray]:
         eu, ev = u + p * le / 2 * c + q * we / 2 * s, v - p * le / 2 * s + q * we / 2 * c
         corners.append(np.hypot(np.maximum(np.abs(eu) - la / 2, 0), np.maximum(np.abs(ev) - wa / 2, 0)))
     overlap = (lon_raw <= 0) & (lat_raw <= 0) & (u_raw <= 0) & (v_raw <= 0)
-    return {"dx": dx, "lon_gap": np.maximum(lon_raw, 0), "dist2": ddx * ddx + ddy * ddy,
-            "box_distance": np.where(overlap, 0.0, np.minimum.reduce(corners))}
+    return {"dx": dx, "lon_gap": np.maximum(lon_raw, 0), "lat_gap": np.maximum(lat_raw, 0),
+            "dist2": ddx * ddx + ddy * ddy, "box_distance": np.where(overlap, 0.0, np.minimum.reduce(corners))}
 
 
 def _islands(frames: np.ndarray) -> np.ndarray:
@@ -90,7 +90,9 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
             if d != drive_id:
                 continue
             e = actors[ego].join(el.set_index("frame")[["lane_id", "lane_run"]], rsuffix="_ego", how="inner")
-            visited = el.dropna(subset=["lane_id"]).groupby(["lane_run", "lane_id"])["t_s"].agg(["min", "max"])
+            in_lane = el.dropna(subset=["lane_id"])
+            visited = in_lane.groupby(["lane_run", "lane_id"])["t_s"].agg(["min", "max"])
+            first_lane = in_lane.sort_values("frame").drop_duplicates("lane_run").set_index("lane_run")["lane_id"]
             rows = []
             for actor, a in actors.items():
                 if actor == ego:
@@ -103,24 +105,29 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 vehicle = aa["kind"].iloc[0] in VEHICLE_KINDS
                 limit = range_m if vehicle else min(range_m, OBJECT_RELATION_RANGE_M)
                 ego_lane, actor_lane = ee["lane_id_ego"].to_numpy(), aa["lane_id"].to_numpy()
+                # the actor's road: the ego's lane, a lane the ego drove in during the last same_road_limit of
+                # its lane run, or (while the ego is in the first lane of its lane run) the lane line
                 same = np.array([(maps[drive_id], x, y) in line for x, y in zip(ego_lane, actor_lane, strict=True)])
+                first = np.array([first_lane.get(run) == x for run, x in zip(ee["lane_run"], ego_lane, strict=True)])
                 road = np.array([
                     (run, lane) in visited.index and visited.loc[(run, lane), "min"] <= ts
                     and visited.loc[(run, lane), "max"] >= ts - float(p["same_road_limit_s"])
                     for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
                 keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & (g["lon_gap"] > 0)
-                        & (same | road))
+                        & ((ego_lane == actor_lane) | road | (same & first)))
                 if not keep.any():
                     continue
+                # the gap along an L-shaped path on the ego's axes, never shorter than the distance between boxes
+                gap = np.maximum(g["lon_gap"] + g["lat_gap"], g["box_distance"])
                 speed = aa["speed_mps"].to_numpy()
-                headway = np.where(speed > 0, g["lon_gap"] / np.where(speed > 0, speed, 1), np.nan)
+                headway = np.where(speed > 0, gap / np.where(speed > 0, speed, 1), np.nan)
                 rows.append(pd.DataFrame({
                     "actor_id": actor, "kind": aa["kind"].iloc[0], "frame": frames.to_numpy()[keep],
                     "t_s": ee["t_s"].to_numpy()[keep], "lane_run": ee["lane_run"].to_numpy()[keep],
-                    "lon_gap": g["lon_gap"][keep], "headway": headway[keep]}))
+                    "gap": gap[keep], "headway": headway[keep]}))
             if not rows:
                 continue
-            behind = pd.concat(rows).sort_values(["frame", "lon_gap", "actor_id"]).drop_duplicates("frame")
+            behind = pd.concat(rows).sort_values(["frame", "gap", "actor_id"]).drop_duplicates("frame")
             behind = behind[behind["kind"].isin(kinds) & (behind["headway"] >= float(p["min_distance_from_sut_in_time_units_s"]))
                             & (behind["headway"] <= float(p["max_distance_from_sut_in_time_units_s"]))]
             for (actor, _run), g in behind.groupby(["actor_id", "lane_run"]):
