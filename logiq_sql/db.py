@@ -500,8 +500,8 @@ def docs_markdown() -> str:
             "## `passages` and `encroachments`", "",
             "Kept from the last run of a junction scenario on each drive: every stay of an ego or related actor in a "
             "junction with its entry and exit, legs and turn (`queries/junctions/passages.sql`), and the encroachment "
-            "area of every ego-actor pair whose paths through a junction cross, as WKT with its extent along both "
-            "paths (`logiq_sql/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
+            "area of every ego-actor pair whose paths through a junction cross, as WKT with the stretch of each "
+            "path along which its box overlaps the area (`logiq_sql/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
             "traffic_light.", "",
             "## `drives` (view)", "",
             "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]

@@ -9,13 +9,16 @@ The one geometric step of junction matching that is not SQL (like localisation a
                     car that waits with a jittering position is one point, not a knot of zig-zags
     area            ego path ∩ actor path (the "shared area where its path intersects the Ego's path inside
                     the junction"); pairs whose paths do not overlap get no row
-    *_enter_s_m,    the extent of the area along each actor's own path: the least and greatest position
-    *_leave_s_m     (actor_paths.s_m) of the area's vertices projected onto the centre line. A projection lands
-                    at a distance along the line, which is mapped to s_m by interpolating between the line's
-                    vertices (each has the mean s_m of its rows): a line's own length counts what is left of the
-                    track's jitter, s_m does not (queries/junctions/actor_paths.sql). The box overlaps the area while
-                    its centre is within half its length of that stretch (see the left-turn phase query, which
-                    applies the encroachment buffers to it).
+    *_occupancy_    the stretch of each actor's own path (actor_paths.s_m of its box centre) along which its box
+    from/to_s_m     overlaps the area: the box (length x width, the passage's median size) is placed at every
+                    vertex of the centre line, headed as the rows of that stretch, and tested against the area;
+                    the least and greatest s_m of the vertices whose box touches it. A rigid box on a curve is
+                    not its swept band: on a left turn the band's inner edge runs ahead of the box's front
+                    corner, and where the ego crosses the first oncoming lane at a shallow angle that put the
+                    band's edge 2-3 m along the path before the box (a left-turner waiting clear of the lane
+                    counted as already in it). Resolution: the 0.5 m of the vertices. When no vertex's box
+                    touches the area (a sliver), the projection of the area's vertices on the centre line,
+                    widened by half the box length, stands in.
 """
 
 from __future__ import annotations
@@ -29,8 +32,8 @@ from logiq_sql.engines import as_engine
 ENCROACHMENTS_SCHEMA = {
     "drive_id": pl.String, "ego_id": pl.String, "ego_passage": pl.Int64, "actor_id": pl.String,
     "actor_passage": pl.Int64, "junction_id": pl.String, "area_m2": pl.Float64, "area_wkt": pl.String,
-    "ego_enter_s_m": pl.Float64, "ego_leave_s_m": pl.Float64,
-    "actor_enter_s_m": pl.Float64, "actor_leave_s_m": pl.Float64,
+    "ego_occupancy_from_s_m": pl.Float64, "ego_occupancy_to_s_m": pl.Float64,
+    "actor_occupancy_from_s_m": pl.Float64, "actor_occupancy_to_s_m": pl.Float64,
 }
 # the tables encroachments() reads, every one keyed by drive_id; a drive without crossing pairs has no rows
 ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
@@ -47,7 +50,7 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
             union
             select drive_id, actor_id, actor_passage as passage from crossing_pairs
         )
-        select p.drive_id, p.actor_id, p.passage, a.s_m, t.x_m, t.y_m, t.width_m
+        select p.drive_id, p.actor_id, p.passage, a.s_m, t.x_m, t.y_m, t.heading_rad, t.length_m, t.width_m
         from passages as p
         inner join wanted as w
             on p.drive_id = w.drive_id and p.actor_id = w.actor_id and p.passage = w.passage
@@ -61,12 +64,14 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     keyed = points.with_columns(passage_key.alias("k"))
     paths = (keyed.group_by("k", maintain_order=True)
              .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"),
-                  pl.col("width_m").median().alias("width_m")))
+                  pl.col("length_m").median().alias("length_m"), pl.col("width_m").median().alias("width_m"))
+             .sort("k"))  # row k is line k
     # one vertex per PATH_STEP_M of s_m: the mean position of the rows in that stretch, so a car waiting with a
     # jittering position is one point where it waits, not a knot of zig-zags
     coords = (keyed.group_by("k", (pl.col("s_m") / PATH_STEP_M).floor().alias("piece"))
-              .agg(pl.col("x_m").mean(), pl.col("y_m").mean(), pl.col("s_m").mean())
-              .sort("k", "piece").select("k", "x_m", "y_m", "s_m"))
+              .agg(pl.col("x_m").mean(), pl.col("y_m").mean(), pl.col("s_m").mean(),
+                   pl.col("heading_rad").sin().mean().alias("sin"), pl.col("heading_rad").cos().mean().alias("cos"))
+              .sort("k", "piece").select("k", "x_m", "y_m", "s_m", pl.arctan2("sin", "cos").alias("heading_rad")))
     # a passage that stays within one stretch has no line: repeat its point so every passage has one
     single = coords.group_by("k").len().filter(pl.col("len") == 1)["k"]
     coords = pl.concat([coords, coords.filter(pl.col("k").is_in(single.implode()))]).sort("k", maintain_order=True)
@@ -78,7 +83,8 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     starts = vertices.group_by("k").agg((pl.max("along") + 1.0).alias("span")).sort("k").with_columns(
         start=pl.col("span").cum_sum() - pl.col("span"))
     vertices = (vertices.join(starts.select("k", "start"), on="k")
-                .select("k", (pl.col("along") + pl.col("start")).alias("along"), "s_m", "start")
+                .select("k", (pl.col("along") + pl.col("start")).alias("along"), "s_m", "start", "x_m", "y_m",
+                        "heading_rad")
                 .sort("along", maintain_order=True))
     return paths, lines, swept, vertices
 
@@ -95,6 +101,41 @@ def _extent(lines: np.ndarray, areas: np.ndarray, owners: np.ndarray, vertices: 
     lo, hi = np.full(len(areas), np.nan), np.full(len(areas), np.nan)
     lo[frame["owner"].to_numpy()] = frame["lo"].to_numpy()
     hi[frame["owner"].to_numpy()] = frame["hi"].to_numpy()
+    return lo, hi
+
+
+def _occupancy(areas: np.ndarray, owners: np.ndarray, paths: pl.DataFrame, vertices: pl.DataFrame
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Least and greatest s_m of the vertices of each owner's line at which its box touches the area (NaN where
+    none does). One box per (area, vertex of its owner's line): a vectorised intersects over them all."""
+    placed = (pl.DataFrame({"area": np.arange(len(areas)), "k": owners})
+              .join(vertices.select("k", "x_m", "y_m", "heading_rad", "s_m"), on="k")
+              .join(paths.select("k", "length_m", "width_m"), on="k"))
+    half_length = placed["length_m"].fill_null(4.5).to_numpy()[:, None] / 2
+    half_width = placed["width_m"].fill_null(1.8).to_numpy()[:, None] / 2
+    cos, sin = np.cos(placed["heading_rad"].to_numpy())[:, None], np.sin(placed["heading_rad"].to_numpy())[:, None]
+    along = np.array([1.0, 1.0, -1.0, -1.0]) * half_length  # the four corners: front left, front right, ...
+    across = np.array([1.0, -1.0, -1.0, 1.0]) * half_width
+    corners = np.stack([placed["x_m"].to_numpy()[:, None] + along * cos - across * sin,
+                        placed["y_m"].to_numpy()[:, None] + along * sin + across * cos], axis=-1)
+    area = placed["area"].to_numpy()
+    touching = shapely.intersects(shapely.polygons(corners), areas[area])
+    frame = (pl.DataFrame({"area": area, "s": placed["s_m"].to_numpy()}).filter(pl.Series(touching))
+             .group_by("area").agg(pl.min("s").alias("lo"), pl.max("s").alias("hi")))
+    lo, hi = np.full(len(areas), np.nan), np.full(len(areas), np.nan)
+    lo[frame["area"].to_numpy()] = frame["lo"].to_numpy()
+    hi[frame["area"].to_numpy()] = frame["hi"].to_numpy()
+    return lo, hi
+
+
+def _occupancy_of(lines, areas, owners, paths, vertices) -> tuple[np.ndarray, np.ndarray]:
+    """Each area's occupancy on its owners' paths: the swept box where it touches, else the projection of the
+    area on the line widened by half the box length."""
+    lo, hi = _occupancy(areas, owners, paths, vertices)
+    enter, leave = _extent(lines[owners], areas, owners, vertices)
+    half = paths["length_m"].fill_null(4.5).to_numpy()[owners] / 2
+    missing = np.isnan(lo)
+    lo[missing], hi[missing] = enter[missing] - half[missing], leave[missing] + half[missing]
     return lo, hi
 
 
@@ -116,11 +157,11 @@ def encroachments(con) -> pl.DataFrame:
     area_m2 = shapely.area(areas)
     keep = area_m2 >= MIN_AREA_M2
     pairs, ek, ak, areas, area_m2 = pairs.filter(pl.Series(keep)), ek[keep], ak[keep], areas[keep], area_m2[keep]
-    ego_lo, ego_hi = _extent(lines[ek], areas, ek, vertices)
-    actor_lo, actor_hi = _extent(lines[ak], areas, ak, vertices)
+    ego_lo, ego_hi = _occupancy_of(lines, areas, ek, paths, vertices)
+    actor_lo, actor_hi = _occupancy_of(lines, areas, ak, paths, vertices)
     return pairs.select(
         "drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage", "junction_id",
         pl.Series("area_m2", area_m2), pl.Series("area_wkt", shapely.to_wkt(areas, rounding_precision=3)),
-        pl.Series("ego_enter_s_m", ego_lo), pl.Series("ego_leave_s_m", ego_hi),
-        pl.Series("actor_enter_s_m", actor_lo), pl.Series("actor_leave_s_m", actor_hi),
+        pl.Series("ego_occupancy_from_s_m", ego_lo), pl.Series("ego_occupancy_to_s_m", ego_hi),
+        pl.Series("actor_occupancy_from_s_m", actor_lo), pl.Series("actor_occupancy_to_s_m", actor_hi),
     ).cast(ENCROACHMENTS_SCHEMA)

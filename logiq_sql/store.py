@@ -62,6 +62,14 @@ def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: 
         # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
         # keeps the empty table's statistics, so filters on it (`where drive_id = ...`, the delete below in a
         # later batch) skipped every row (kept relations were stored twice)
+        columns = "select column_name, data_type from duckdb_columns() where table_name = $t and {} order by column_index"
+        mine = con.execute(columns.format("database_name = 'temp'"), {"t": table}).fetchall()
+        kept = con.execute(columns.format("database_name = current_database() and schema_name = 'main'"),
+                           {"t": table}).fetchall()
+        if kept and kept != mine:
+            # kept by a version whose table had other columns: its rows are intermediate results of other SQL,
+            # recomputed by match --keep; inserting into it would mix the two
+            con.execute(f"drop table {stored}.{table}")
         con.execute(f"create table if not exists {stored}.{table} as select * from temp.main.{table} limit 0")
     con.execute("begin transaction")
     try:

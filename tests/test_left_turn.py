@@ -202,3 +202,33 @@ def test_explain_through_the_cli_and_its_errors(base, capsys):
         explain(path, SCENARIO, "nope", "ego")
     # every scenario explains: the follower scenario on this file has no follower, and says so per pair
     assert "follower_vehicle could not begin" in explain(path, "follower_vehicle", "j1", "ego").text()
+
+
+def creeping_ego_s(t: np.ndarray) -> np.ndarray:
+    """Stops at the line (2 m before the junction) at t = 4 s, creeps at 2 m/s from t = 5 s to its waiting
+    position 4.5 m into the junction on the left-turn arc (reached at t = 8.25 s), waits there until t = 12 s,
+    then turns as ego_s does. At 4.5 m its box is clear of the oncoming lane's band (it first touches it at
+    4.64 m), while the band's inner edge reaches the arc's centre line, projected, at 6.66 m - 2.25 m = 4.41 m."""
+    creep = np.clip(t - 5, 0, 3.25)
+    go = np.clip(t - 12, 0, None)
+    waiting = np.where(t < 4, -18 + 8 * t - t**2, -2 + 2 * creep)
+    return np.where(t < 12, waiting, 4.5 + np.where(go < 3, go**2, 9 + 6 * (go - 3)))
+
+
+def test_a_left_turner_waiting_clear_of_the_oncoming_lane_yields(tmp_path):
+    """A left-turner that creeps into the junction and waits on its arc just clear of the oncoming car's path has
+    not entered the encroachment area: its box, placed along its path, decides (docs/semantics.md, occupancy),
+    not the area's projection on the centre line, which on the arc runs ahead of the box's front corner."""
+    path = make_junction_db(tmp_path, [drive("ego", T, creeping_ego_s(T), "S_left", is_ego=True),
+                                       drive("car", T, oncoming_s(T, enters_at=9.0), "N_straight")])
+    result = match(path, [SCENARIO], keep=True)
+    with duckdb.connect(str(path), read_only=True) as con:
+        enc = con.sql("select * from encroachments").pl().row(0, named=True)
+        waiting = con.sql("select x_m, y_m, heading_rad from tracks where actor_id = 'ego' and frame = 100").fetchall()
+    x, y, heading = waiting[0]
+    box = shapely.affinity.rotate(shapely.box(x - 2.25, y - 0.9, x + 2.25, y + 0.9), heading, (x, y), use_radians=True)
+    assert not box.intersects(shapely.from_wkt(enc["area_wkt"]))  # the premise: clear of the area while it waits
+    # s_m counts from the ego's first row, 18 m before the junction (creeping_ego_s(0) = -18)
+    assert 4.5 < enc["ego_occupancy_from_s_m"] - 18 < 5.2
+    assert result.matches.select("actor_id").rows() == [("car",)]
+

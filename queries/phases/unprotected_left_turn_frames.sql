@@ -23,8 +23,8 @@
 --                                            line (the junction start) or already in the junction it controls
 --   traversal_relative_direction             <entry leg>_to_<exit leg> of the actor, each leg classed against
 --                                            the ego's inbound heading (see leg classes below)
---   occupancy                                the stretch of its own path along which a box overlaps the
---                                            encroachment area: [enter_s - length/2, leave_s + length/2]
+--   occupancy                                the stretch of its own path (its centre's s_m) along which a
+--                                            box overlaps the encroachment area (encroachments.*_occupancy_*)
 --   actor_in_encroachment                    the actor's centre is inside its occupancy after the buffers
 --                                            cut encroachment_start_buffer and encroachment_end_buffer of
 --                                            its length from the start and the end
@@ -79,18 +79,14 @@ pair_frames as (
 ),
 
 occupancy as (
-    -- each encroachment's occupancy stretches, on the ego's and on the actor's own path
+    -- each encroachment's occupancy stretches, on the ego's and on the actor's own path (logiq_sql/encroachment.py)
     select
         x.*,
-        x.ego_enter_s_m - te.length_m / 2 as ego_occupancy_lo_m,
-        x.ego_leave_s_m + te.length_m / 2 as ego_occupancy_hi_m,
-        x.actor_enter_s_m - ta.length_m / 2 as actor_occupancy_lo_m,
-        x.actor_leave_s_m + ta.length_m / 2 as actor_occupancy_hi_m
+        x.ego_occupancy_from_s_m as ego_occupancy_lo_m,
+        x.ego_occupancy_to_s_m as ego_occupancy_hi_m,
+        x.actor_occupancy_from_s_m as actor_occupancy_lo_m,
+        x.actor_occupancy_to_s_m as actor_occupancy_hi_m
     from encroachments as x
-    inner join (select drive_id, actor_id, max(length_m) as length_m from tracks group by drive_id, actor_id) as te
-        on x.drive_id = te.drive_id and x.ego_id = te.actor_id
-    inner join (select drive_id, actor_id, max(length_m) as length_m from tracks group by drive_id, actor_id) as ta
-        on x.drive_id = ta.drive_id and x.actor_id = ta.actor_id
 ),
 
 crossing_rows as (
