@@ -15,7 +15,7 @@ import polars as pl
 
 from logiq_sql import locking, schema
 from logiq_sql.errors import DiskFullError, FileBusyError, InputError, LogiqError
-from logiq_sql.schema import Column, Table, _c
+from logiq_sql.schema import Column, Table
 
 S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
 
@@ -23,19 +23,19 @@ MATCHES = Table(
     "matches",
     "One row per match: a scenario, a drive, the ego (SUT) and the actor bound to the scenario's second role.",
     (
-        _c("match_id", S, "md5 of scenario, drive, ego, actor and start frame: stable across reruns.", False),
-        _c("scenario", S, "Scenario name (file in scenarios/).", False),
-        _c("scenario_version", I, "The scenario file's version.", False),
-        _c("params_hash", S, "Digest of the bound parameter values (see match_runs.params_json).", False),
-        _c("drive_id", S, "Drive.", False),
-        _c("ego_id", S, "actor_id of the ego (SUT).", False),
-        _c("actor_id", S, "actor_id of the other actor (vehicle_actor, cyclist).", False),
-        _c("start_frame", I, "First frame of the match.", False),
-        _c("end_frame", I, "Last frame of the match (inclusive).", False),
-        _c("start_s", F, "t_s of the first frame.", False),
-        _c("end_s", F, "t_s of the last frame.", False),
-        _c("duration_s", F, "end_s - start_s.", False),
-        _c("run_id", S, "The run that produced the match: join match_runs using (run_id, scenario) for its "
+        Column("match_id", S, "md5 of scenario, drive, ego, actor and start frame: stable across reruns.", False),
+        Column("scenario", S, "Scenario name (file in scenarios/).", False),
+        Column("scenario_version", I, "The scenario file's version.", False),
+        Column("params_hash", S, "Digest of the bound parameter values (see match_runs.params_json).", False),
+        Column("drive_id", S, "Drive.", False),
+        Column("ego_id", S, "actor_id of the ego (SUT).", False),
+        Column("actor_id", S, "actor_id of the other actor (vehicle_actor, cyclist).", False),
+        Column("start_frame", I, "First frame of the match.", False),
+        Column("end_frame", I, "Last frame of the match (inclusive).", False),
+        Column("start_s", F, "t_s of the first frame.", False),
+        Column("end_s", F, "t_s of the last frame.", False),
+        Column("duration_s", F, "end_s - start_s.", False),
+        Column("run_id", S, "The run that produced the match: join match_runs using (run_id, scenario) for its "
                         "parameter values."),
     ),
 )
@@ -44,14 +44,14 @@ MATCH_PHASES = Table(
     "match_phases",
     "The interval of every phase of every match.",
     (
-        _c("match_id", S, "Match.", False),
-        _c("scenario", S, "Scenario.", False),
-        _c("phase_index", I, "1 for the first phase.", False),
-        _c("phase", S, "Phase name from the spec.", False),
-        _c("start_frame", I, "First frame of the phase.", False),
-        _c("end_frame", I, "Last frame of the phase.", False),
-        _c("start_s", F, "Start, seconds.", False),
-        _c("end_s", F, "End, seconds.", False),
+        Column("match_id", S, "Match.", False),
+        Column("scenario", S, "Scenario.", False),
+        Column("phase_index", I, "1 for the first phase.", False),
+        Column("phase", S, "Phase name from the spec.", False),
+        Column("start_frame", I, "First frame of the phase.", False),
+        Column("end_frame", I, "Last frame of the phase.", False),
+        Column("start_s", F, "Start, seconds.", False),
+        Column("end_s", F, "End, seconds.", False),
     ),
 )
 
@@ -59,12 +59,12 @@ COVERAGE_SAMPLES = Table(
     "coverage_samples",
     "One row per (match, coverage item): the sampled value in the item's unit.",
     (
-        _c("scenario", S, "Scenario.", False),
-        _c("match_id", S, "Match.", False),
-        _c("item", S, "Coverage item name from the spec.", False),
-        _c("unit", S, "Unit of value_num, or the enum type.", False),
-        _c("value_num", F, "Numeric sample; NULL for enum items or undefined values."),
-        _c("value_text", S, "Enum sample; NULL for numeric items."),
+        Column("scenario", S, "Scenario.", False),
+        Column("match_id", S, "Match.", False),
+        Column("item", S, "Coverage item name from the spec.", False),
+        Column("unit", S, "Unit of value_num, or the enum type.", False),
+        Column("value_num", F, "Numeric sample; NULL for enum items or undefined values."),
+        Column("value_text", S, "Enum sample; NULL for numeric items."),
     ),
 )
 
@@ -72,13 +72,13 @@ COVERAGE_BUCKETS = Table(
     "coverage_buckets",
     "The buckets of every coverage item: half-open [lo, hi) in the item's unit, or one enum value.",
     (
-        _c("scenario", S, "Scenario.", False),
-        _c("item", S, "Coverage item.", False),
-        _c("bucket_index", I, "0-based bucket number.", False),
-        _c("bucket", S, "Label, e.g. '[10, 20)' or the enum value.", False),
-        _c("lo", F, "Lower edge (inclusive), NULL for enum buckets."),
-        _c("hi", F, "Upper edge (exclusive), NULL for enum buckets."),
-        _c("value_text", S, "Enum value, NULL for numeric buckets."),
+        Column("scenario", S, "Scenario.", False),
+        Column("item", S, "Coverage item.", False),
+        Column("bucket_index", I, "0-based bucket number.", False),
+        Column("bucket", S, "Label, e.g. '[10, 20)' or the enum value.", False),
+        Column("lo", F, "Lower edge (inclusive), NULL for enum buckets."),
+        Column("hi", F, "Upper edge (exclusive), NULL for enum buckets."),
+        Column("value_text", S, "Enum value, NULL for numeric buckets."),
     ),
 )
 
@@ -87,13 +87,13 @@ COVERAGE = Table(
     "Coverage histograms over every match in the file: one row per bucket (empty ones too), plus 'out_of_range' "
     "and 'missing' rows where samples fell outside every bucket or were undefined.",
     (
-        _c("scenario", S, "Scenario.", False),
-        _c("item", S, "Coverage item.", False),
-        _c("bucket_index", I, "Bucket number; NULL for out_of_range and missing."),
-        _c("bucket", S, "Bucket label, 'out_of_range' or 'missing'.", False),
-        _c("lo", F, "Lower edge (inclusive)."),
-        _c("hi", F, "Upper edge (exclusive)."),
-        _c("hits", I, "Matches whose sample fell in the bucket.", False),
+        Column("scenario", S, "Scenario.", False),
+        Column("item", S, "Coverage item.", False),
+        Column("bucket_index", I, "Bucket number; NULL for out_of_range and missing."),
+        Column("bucket", S, "Bucket label, 'out_of_range' or 'missing'.", False),
+        Column("lo", F, "Lower edge (inclusive)."),
+        Column("hi", F, "Upper edge (exclusive)."),
+        Column("hits", I, "Matches whose sample fell in the bucket.", False),
     ),
 )
 
@@ -101,18 +101,18 @@ MATCH_RUNS = Table(
     "match_runs",
     "One row per (run, scenario): the parameter values used, so every match can be rerun.",
     (
-        _c("run_id", S, "Run id (time-ordered).", False),
-        _c("started_at", S, "UTC start time, ISO 8601.", False),
-        _c("scenario", S, "Scenario.", False),
-        _c("scenario_version", I, "Scenario file version.", False),
-        _c("params_hash", S, "Digest of params_json.", False),
-        _c("params_json", S, "Every SQL parameter and its bound value, canonical units.", False),
-        _c("overrides", S, "The --set values as written.", False),
-        _c("ego_mode", S, "auto, recorded, all, every:N or an actor id.", False),
-        _c("drives", I, "Drives matched in the run (drives already up to date are not rerun, see drive_scenarios).",
+        Column("run_id", S, "Run id (time-ordered).", False),
+        Column("started_at", S, "UTC start time, ISO 8601.", False),
+        Column("scenario", S, "Scenario.", False),
+        Column("scenario_version", I, "Scenario file version.", False),
+        Column("params_hash", S, "Digest of params_json.", False),
+        Column("params_json", S, "Every SQL parameter and its bound value, canonical units.", False),
+        Column("overrides", S, "The --set values as written.", False),
+        Column("ego_mode", S, "auto, recorded, all, every:N or an actor id.", False),
+        Column("drives", I, "Drives matched in the run (drives already up to date are not rerun, see drive_scenarios).",
            False),
-        _c("matches", I, "Matches found on those drives.", False),
-        _c("relation_range_m", F, "The --relation-range of the run, metres."),
+        Column("matches", I, "Matches found on those drives.", False),
+        Column("relation_range_m", F, "The --relation-range of the run, metres."),
     ),
 )
 
@@ -122,13 +122,13 @@ DRIVE_SCENARIOS = Table(
     "while its run had the same params_hash, ego_mode and relation_range_m (match --force reruns it); re-ingesting "
     "the drive removes its rows.",
     (
-        _c("drive_id", S, "Drive.", False),
-        _c("scenario", S, "Scenario.", False),
-        _c("params_hash", S, "Parameters of that run.", False),
-        _c("egos", I, "SUTs considered in the drive.", False),
-        _c("matches", I, "Matches found.", False),
-        _c("status", S, "matched, no_match, no_ego (no actor could be the SUT) or rejected.", False),
-        _c("run_id", S, "The run that matched the pair: join match_runs using (run_id, scenario)."),
+        Column("drive_id", S, "Drive.", False),
+        Column("scenario", S, "Scenario.", False),
+        Column("params_hash", S, "Parameters of that run.", False),
+        Column("egos", I, "SUTs considered in the drive.", False),
+        Column("matches", I, "Matches found.", False),
+        Column("status", S, "matched, no_match, no_ego (no actor could be the SUT) or rejected.", False),
+        Column("run_id", S, "The run that matched the pair: join match_runs using (run_id, scenario)."),
     ),
 )
 

@@ -44,29 +44,25 @@ class Table:
         return [c.name for c in self.columns]
 
 
-def _c(name: str, dtype: pl.DataType, doc: str, nullable: bool = True) -> Column:
-    return Column(name, dtype, doc, nullable)
-
-
 S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
 
 TRACKS = Table(
     "tracks",
     "One row per actor per timestamp, in a right-handed map frame (x east, y north), SI units.",
     (
-        _c("drive_id", S, "The drive (log, scene, simulation run) this row belongs to.", False),
-        _c("actor_id", S, "Tracking id of the actor inside its drive, as the source names it.", False),
-        _c("kind", S, f"evaluation_object_kind: one of {', '.join(OBJECT_KINDS)}.", False),
-        _c("is_ego", B, "True on the recorded ego (SUT) rows; every row of an ego-less source is False.", False),
-        _c("frame", I, "Sample index, t_s / dt_s rounded; consecutive integers mean consecutive samples.", False),
-        _c("t_s", F, "Time since the start of the drive, seconds.", False),
-        _c("x_m", F, "Centre of the bounding box, metres.", False),
-        _c("y_m", F, "Centre of the bounding box, metres.", False),
-        _c("heading_rad", F, "Yaw of the box, radians counter-clockwise from +x; derived from motion if absent."),
-        _c("speed_mps", F, "Longitudinal speed along the heading, m/s; derived from positions if absent."),
-        _c("accel_mps2", F, "Longitudinal acceleration, m/s^2; derived from speed if absent."),
-        _c("length_m", F, "Box length along the heading, metres."),
-        _c("width_m", F, "Box width across the heading, metres."),
+        Column("drive_id", S, "The drive (log, scene, simulation run) this row belongs to.", False),
+        Column("actor_id", S, "Tracking id of the actor inside its drive, as the source names it.", False),
+        Column("kind", S, f"evaluation_object_kind: one of {', '.join(OBJECT_KINDS)}.", False),
+        Column("is_ego", B, "True on the recorded ego (SUT) rows; every row of an ego-less source is False.", False),
+        Column("frame", I, "Sample index, t_s / dt_s rounded; consecutive integers mean consecutive samples.", False),
+        Column("t_s", F, "Time since the start of the drive, seconds.", False),
+        Column("x_m", F, "Centre of the bounding box, metres.", False),
+        Column("y_m", F, "Centre of the bounding box, metres.", False),
+        Column("heading_rad", F, "Yaw of the box, radians counter-clockwise from +x; derived from motion if absent."),
+        Column("speed_mps", F, "Longitudinal speed along the heading, m/s; derived from positions if absent."),
+        Column("accel_mps2", F, "Longitudinal acceleration, m/s^2; derived from speed if absent."),
+        Column("length_m", F, "Box length along the heading, metres."),
+        Column("width_m", F, "Box width across the heading, metres."),
     ),
 )
 
@@ -74,18 +70,18 @@ DRIVE_INPUTS = Table(
     "drive_inputs",
     "One row per drive that ingest saw, accepted or rejected, with where it came from.",
     (
-        _c("drive_id", S, "Unique id of the drive in this database.", False),
-        _c("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2 (frames: given to "
+        Column("drive_id", S, "Unique id of the drive in this database.", False),
+        Column("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2 (frames: given to "
                                "match_frames, in memory).", False),
-        _c("source_path", S, "File the drive was read from.", False),
-        _c("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
-        _c("dt_s", F, "Sample period in seconds."),
-        _c("ego_actor_id", S, "The recorded ego's actor_id; NULL for ego-less sources such as NGSIM."),
-        _c("rows_read", I, "Track rows found in the source.", False),
-        _c("rows_rejected", I, "Track rows dropped at ingest (see reject_reason).", False),
-        _c("status", S, "ingested or rejected.", False),
-        _c("reject_reason", S, "Why the drive (or some of its rows) was rejected."),
-        _c("attribution", S, "Licence and attribution of the data."),
+        Column("source_path", S, "File the drive was read from.", False),
+        Column("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
+        Column("dt_s", F, "Sample period in seconds."),
+        Column("ego_actor_id", S, "The recorded ego's actor_id; NULL for ego-less sources such as NGSIM."),
+        Column("rows_read", I, "Track rows found in the source.", False),
+        Column("rows_rejected", I, "Track rows dropped at ingest (see reject_reason).", False),
+        Column("status", S, "ingested or rejected.", False),
+        Column("reject_reason", S, "Why the drive (or some of its rows) was rejected."),
+        Column("attribution", S, "Licence and attribution of the data."),
     ),
 )
 
@@ -93,17 +89,17 @@ LANES = Table(
     "lanes",
     "Lanes as polygons in the map frame (WKT), with neighbours and whether they lie in a junction.",
     (
-        _c("map_id", S, "Map the lane belongs to.", False),
-        _c("lane_id", S, "Lane id inside its map.", False),
-        _c("lane_type", S, "Source lane type (e.g. urban, highway, VEHICLE, BIKE)."),
-        _c("polygon_wkt", S, "Lane area as a WKT POLYGON.", False),
-        _c("centerline_wkt", S, "Centre line as a WKT LINESTRING in driving direction.", False),
-        _c("left_lane_id", S, "Left neighbour lane, NULL if none."),
-        _c("left_same_direction", B, "True if the left neighbour is driven in the same direction."),
-        _c("right_lane_id", S, "Right neighbour lane, NULL if none."),
-        _c("right_same_direction", B, "True if the right neighbour is driven in the same direction."),
-        _c("speed_limit_mps", F, "Speed limit, m/s, NULL if unknown."),
-        _c("junction_id", S, "Junction (intersection) this lane lies in, NULL if none."),
+        Column("map_id", S, "Map the lane belongs to.", False),
+        Column("lane_id", S, "Lane id inside its map.", False),
+        Column("lane_type", S, "Source lane type (e.g. urban, highway, VEHICLE, BIKE)."),
+        Column("polygon_wkt", S, "Lane area as a WKT POLYGON.", False),
+        Column("centerline_wkt", S, "Centre line as a WKT LINESTRING in driving direction.", False),
+        Column("left_lane_id", S, "Left neighbour lane, NULL if none."),
+        Column("left_same_direction", B, "True if the left neighbour is driven in the same direction."),
+        Column("right_lane_id", S, "Right neighbour lane, NULL if none."),
+        Column("right_same_direction", B, "True if the right neighbour is driven in the same direction."),
+        Column("speed_limit_mps", F, "Speed limit, m/s, NULL if unknown."),
+        Column("junction_id", S, "Junction (intersection) this lane lies in, NULL if none."),
     ),
 )
 
@@ -111,10 +107,10 @@ LANE_SUCCESSORS = Table(
     "lane_successors",
     "Directed lane graph: a car at the end of lane_id may continue on successor_id.",
     (
-        _c("map_id", S, "Map.", False),
-        _c("lane_id", S, "From lane.", False),
-        _c("successor_id", S, "To lane.", False),
-        _c("turn", S, "left, right, straight or NULL when the source does not say."),
+        Column("map_id", S, "Map.", False),
+        Column("lane_id", S, "From lane.", False),
+        Column("successor_id", S, "To lane.", False),
+        Column("turn", S, "left, right, straight or NULL when the source does not say."),
     ),
 )
 
@@ -122,9 +118,9 @@ JUNCTIONS = Table(
     "junctions",
     "Junctions (intersections) as the union of their lanes' polygons.",
     (
-        _c("map_id", S, "Map.", False),
-        _c("junction_id", S, "Junction id.", False),
-        _c("polygon_wkt", S, "Junction area as WKT.", False),
+        Column("map_id", S, "Map.", False),
+        Column("junction_id", S, "Junction id.", False),
+        Column("polygon_wkt", S, "Junction area as WKT.", False),
     ),
 )
 
@@ -132,13 +128,13 @@ TRAFFIC_LIGHTS = Table(
     "traffic_lights",
     "Traffic lights and the lanes they govern.",
     (
-        _c("map_id", S, "Map.", False),
-        _c("light_id", S, "Light id.", False),
-        _c("lane_id", S, "A lane this light governs (one row per lane).", False),
-        _c("direction", S, "The movements it governs: a comma-separated subset of left, straight, right, u_turn; "
+        Column("map_id", S, "Map.", False),
+        Column("light_id", S, "Light id.", False),
+        Column("lane_id", S, "A lane this light governs (one row per lane).", False),
+        Column("direction", S, "The movements it governs: a comma-separated subset of left, straight, right, u_turn; "
                            "NULL = every movement from the lane."),
-        _c("x_m", F, "Light position, metres (NULL if unknown)."),
-        _c("y_m", F, "Light position, metres (NULL if unknown)."),
+        Column("x_m", F, "Light position, metres (NULL if unknown)."),
+        Column("y_m", F, "Light position, metres (NULL if unknown)."),
     ),
 )
 
@@ -146,10 +142,10 @@ TRAFFIC_LIGHT_STATES = Table(
     "traffic_light_states",
     "State of every light at every frame of a drive, where the data has it.",
     (
-        _c("drive_id", S, "Drive.", False),
-        _c("light_id", S, "Light id.", False),
-        _c("frame", I, "Sample index.", False),
-        _c("state", S, f"One of {', '.join(TRAFFIC_LIGHT_STATES)}.", False),
+        Column("drive_id", S, "Drive.", False),
+        Column("light_id", S, "Light id.", False),
+        Column("frame", I, "Sample index.", False),
+        Column("state", S, f"One of {', '.join(TRAFFIC_LIGHT_STATES)}.", False),
     ),
 )
 
@@ -174,12 +170,13 @@ TRACK_LANES = Table(
     "track_lanes",
     "Every lane within 3 m of every track row (shapely, at ingest); scenarios apply their own tolerance.",
     (
-        _c("drive_id", S, "Drive.", False),
-        _c("actor_id", S, "Actor.", False),
-        _c("frame", I, "Sample index.", False),
-        _c("lane_id", S, "A lane of the drive's map.", False),
-        _c("dist_m", F, "Distance from the box centre to the lane polygon, 0 inside.", False),
-        _c("heading_diff_rad", F, "Actor heading minus lane direction at the nearest centre-line point, in (-pi, pi].", False),
+        Column("drive_id", S, "Drive.", False),
+        Column("actor_id", S, "Actor.", False),
+        Column("frame", I, "Sample index.", False),
+        Column("lane_id", S, "A lane of the drive's map.", False),
+        Column("dist_m", F, "Distance from the box centre to the lane polygon, 0 inside.", False),
+        Column("heading_diff_rad", F,
+               "Actor heading minus lane direction at the nearest centre-line point, in (-pi, pi].", False),
     ),
 )
 LOCALISATION_RANGE_M = 3.0

@@ -25,13 +25,13 @@ import shapely
 
 from logiq_sql.errors import InputError, ScenarioError, did_you_mean
 from logiq_sql.readers.sumo import (
-    _coords,
-    _parse_xml,
+    parse_sumo_xml,
     read_fcd,
     read_vtypes,
     run_file,
     run_folders,
     sample_period_s,
+    shape_coords,
     xml_records,
 )
 from logiq_sql.scenario import load_scenario
@@ -379,7 +379,7 @@ def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.Dat
     folder = Path(folder)
     net_path = run_file(folder, ("*.net.xml", "*.net.xml.gz"), "SUMO network",
                         "copy the network the run used (e.g. network.net.xml.gz) into the folder.")
-    root = _parse_xml(net_path, "net")
+    root = parse_sumo_xml(net_path, "net")
     lanes = {lane.get("id"): (float(lane.get("length", "nan")), lane.get("shape", ""))
              for edge in root.iter("edge") for lane in edge.iter("lane")}
     edge_lanes: dict[str, list[str]] = {}
@@ -401,7 +401,7 @@ def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.Dat
         offset, coords = 0.0, []
         for lane in chain:
             length, shape = lanes[lane]
-            xy = _coords(shape)
+            xy = shape_coords(shape)
             coords.append(xy)
             lane_rows.append((link, lane, offset, length, float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())))
             offset += length

@@ -286,7 +286,7 @@ def _read_bytes(path: Path) -> bytes:
                          "complete.") from None
 
 
-def _parse_xml(path: Path, root_tags: str | tuple[str, ...], raw: bytes | None = None) -> ET.Element:
+def parse_sumo_xml(path: Path, root_tags: str | tuple[str, ...], raw: bytes | None = None) -> ET.Element:
     try:
         root = ET.fromstring(_read_bytes(path) if raw is None else raw)
     except ET.ParseError as exc:
@@ -423,7 +423,7 @@ def read_vtypes(folder: str | Path) -> pl.DataFrame:
     folder = Path(folder)
     rows = {tid: (vclass, *VCLASS_SIZE_M[vclass]) for tid, vclass in _BUILTIN_TYPES.items()}
     for path in run_files(folder).get("routes", []):
-        root = _parse_xml(path, ("routes", "additional"))
+        root = parse_sumo_xml(path, ("routes", "additional"))
         for vt in root.iter("vType"):
             vclass = vt.get("vClass", "passenger")
             length, width = VCLASS_SIZE_M.get(vclass, VCLASS_SIZE_M["passenger"])
@@ -473,7 +473,7 @@ def sample_period_s(fcd: pl.DataFrame, path: Path) -> float:
 
 # ---------------------------------------------------------------------------------------------------------- map
 
-def _coords(shape: str) -> np.ndarray:
+def shape_coords(shape: str) -> np.ndarray:
     return np.array([p.split(",")[:2] for p in shape.split()], dtype=float).reshape(-1, 2)
 
 
@@ -506,11 +506,11 @@ def network_tables(path: Path, map_id: str, raw: bytes | None = None,
     ``undo_offset``: subtract the network's ``<location netOffset>`` from every coordinate, back to the frame of
     the source netconvert converted (an OpenDRIVE map); a SUMO run's FCD is in the shifted frame, so not there.
     """
-    root = _parse_xml(path, "net", raw)
+    root = parse_sumo_xml(path, "net", raw)
     location = root.find("location")
     offset = np.zeros(2)
     if undo_offset and location is not None and location.get("netOffset"):
-        offset = _coords(location.get("netOffset"))[0]
+        offset = shape_coords(location.get("netOffset"))[0]
     return _map(root, map_id, path, offset)
 
 
@@ -540,7 +540,7 @@ def _map(root: ET.Element, map_id: str, path: Path, offset: np.ndarray) -> tuple
     if not lane_rows:
         raise InputError(f"{path}: the network has no lanes.")
     try:
-        coords = [_coords(r.pop("shape")) - offset for r in lane_rows]
+        coords = [shape_coords(r.pop("shape")) - offset for r in lane_rows]
         lines = shapely.linestrings(np.concatenate(coords), indices=np.repeat(np.arange(len(coords)),
                                                                                [len(c) for c in coords]))
     except (ValueError, shapely.errors.GEOSException) as exc:
@@ -566,7 +566,7 @@ def _map(root: ET.Element, map_id: str, path: Path, offset: np.ndarray) -> tuple
 
     junction_rows = []
     for jid, j in junctions.items():
-        outline = _coords(j.get("shape", "")) - offset
+        outline = shape_coords(j.get("shape", "")) - offset
         if j.get("type") == "dead_end" or len(outline) < 3:
             continue
         parts = [g for g in shapely.get_parts(shapely.make_valid(shapely.Polygon(outline)))
