@@ -28,6 +28,7 @@ import polars as pl
 import shapely
 
 from logiq_sql.engines import as_engine
+from logiq_sql.schema import DEFAULT_SIZE_M
 
 ENCROACHMENTS_SCHEMA = {
     "drive_id": pl.String, "ego_id": pl.String, "ego_passage": pl.Int64, "actor_id": pl.String,
@@ -39,6 +40,7 @@ ENCROACHMENTS_SCHEMA = {
 ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 PATH_STEP_M = 0.5  # a path's vertices: the mean position of its rows over each 0.5 m of s_m
+CAR_LENGTH_M, CAR_WIDTH_M = DEFAULT_SIZE_M["vehicle"]  # a passage whose rows have no size: a car's box
 
 
 def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
@@ -64,7 +66,8 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     keyed = points.with_columns(passage_key.alias("k"))
     paths = (keyed.group_by("k", maintain_order=True)
              .agg(pl.first("drive_id"), pl.first("actor_id"), pl.first("passage"),
-                  pl.col("length_m").median().alias("length_m"), pl.col("width_m").median().alias("width_m"))
+                  pl.col("length_m").median().fill_null(CAR_LENGTH_M).alias("length_m"),
+                  pl.col("width_m").median().fill_null(CAR_WIDTH_M).alias("width_m"))
              .sort("k"))  # row k is line k
     # one vertex per PATH_STEP_M of s_m: the mean position of the rows in that stretch, so a car waiting with a
     # jittering position is one point where it waits, not a knot of zig-zags
@@ -76,7 +79,7 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     single = coords.group_by("k").len().filter(pl.col("len") == 1)["k"]
     coords = pl.concat([coords, coords.filter(pl.col("k").is_in(single.implode()))]).sort("k", maintain_order=True)
     lines = shapely.linestrings(coords.select("x_m", "y_m").to_numpy(), indices=coords["k"].to_numpy())
-    swept = shapely.buffer(lines, paths["width_m"].fill_null(1.8).to_numpy() / 2, cap_style="flat")
+    swept = shapely.buffer(lines, paths["width_m"].to_numpy() / 2, cap_style="flat")
     step = ((pl.col("x_m").diff().over("k") ** 2 + pl.col("y_m").diff().over("k") ** 2).sqrt()).fill_null(0.0)
     vertices = coords.with_columns(along=step.cum_sum().over("k"))
     # line k's distances start where line k-1's ended plus 1 m: one increasing scale for every line (np.interp)
@@ -111,8 +114,8 @@ def _occupancy(areas: np.ndarray, owners: np.ndarray, paths: pl.DataFrame, verti
     placed = (pl.DataFrame({"area": np.arange(len(areas)), "k": owners})
               .join(vertices.select("k", "x_m", "y_m", "heading_rad", "s_m"), on="k")
               .join(paths.select("k", "length_m", "width_m"), on="k"))
-    half_length = placed["length_m"].fill_null(4.5).to_numpy()[:, None] / 2
-    half_width = placed["width_m"].fill_null(1.8).to_numpy()[:, None] / 2
+    half_length = placed["length_m"].to_numpy()[:, None] / 2
+    half_width = placed["width_m"].to_numpy()[:, None] / 2
     cos, sin = np.cos(placed["heading_rad"].to_numpy())[:, None], np.sin(placed["heading_rad"].to_numpy())[:, None]
     along = np.array([1.0, 1.0, -1.0, -1.0]) * half_length  # the four corners: front left, front right, ...
     across = np.array([1.0, -1.0, -1.0, 1.0]) * half_width
@@ -132,10 +135,12 @@ def _occupancy_of(lines, areas, owners, paths, vertices) -> tuple[np.ndarray, np
     """Each area's occupancy on its owners' paths: the swept box where it touches, else the projection of the
     area on the line widened by half the box length."""
     lo, hi = _occupancy(areas, owners, paths, vertices)
-    enter, leave = _extent(lines[owners], areas, owners, vertices)
-    half = paths["length_m"].fill_null(4.5).to_numpy()[owners] / 2
     missing = np.isnan(lo)
-    lo[missing], hi[missing] = enter[missing] - half[missing], leave[missing] + half[missing]
+    if missing.any():  # projected only where no box touches
+        stand_in = owners[missing]
+        enter, leave = _extent(lines[stand_in], areas[missing], stand_in, vertices)
+        half = paths["length_m"].to_numpy()[stand_in] / 2
+        lo[missing], hi[missing] = enter - half, leave + half
     return lo, hi
 
 

@@ -62,7 +62,8 @@ def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: 
         # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
         # keeps the empty table's statistics, so filters on it (`where drive_id = ...`, the delete below in a
         # later batch) skipped every row (kept relations were stored twice)
-        columns = "select column_name, data_type from duckdb_columns() where table_name = $t and {} order by column_index"
+        columns = ("select column_name, data_type from duckdb_columns() where table_name = $t and {} "
+                   "order by column_index")
         mine = con.execute(columns.format("database_name = 'temp'"), {"t": table}).fetchall()
         kept = con.execute(columns.format("database_name = current_database() and schema_name = 'main'"),
                            {"t": table}).fetchall()
