@@ -5,36 +5,8 @@ module's private (`_name`) names, at any level."""
 from __future__ import annotations
 
 import ast
-from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "logiq_sql"
-
-
-def modules() -> dict[str, ast.Module]:
-    found = {}
-    for path in sorted(PACKAGE.rglob("*.py")):
-        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-        found[name] = ast.parse(path.read_text(), str(path))
-    return found
-
-
-def imports(nodes, known: set[str]) -> list[tuple[str, list[str]]]:
-    """(module, names) of every ``from logiq_sql... import`` or ``import logiq_sql...`` among ``nodes``; a name
-    that is itself a submodule is an import of that submodule (Python loads the package first, but finishes it
-    first)."""
-    found = []
-    for node in nodes:
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "logiq_sql":
-            names = [a.name for a in node.names]
-            subs = [f"{node.module}.{n}" for n in names if f"{node.module}.{n}" in known]
-            found += [(s, []) for s in subs]
-            rest = [n for n in names if f"{node.module}.{n}" not in known]
-            if rest:
-                found.append((node.module, rest))
-        elif isinstance(node, ast.Import):
-            found += [(a.name, []) for a in node.names if a.name.split(".")[0] == "logiq_sql"]
-    return found
+from tests.source_imports import logiq_imports, package_modules
 
 
 def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -58,8 +30,8 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 
 
 def test_module_level_imports_form_no_cycle():
-    trees = modules()
-    graph = {name: {m for m, _ in imports(tree.body, set(trees)) if m in trees and m != name}
+    trees = package_modules()
+    graph = {name: {m for m, _ in logiq_imports(tree.body, set(trees)) if m in trees and m != name}
              for name, tree in trees.items()}
     assert graph["logiq_sql.match"], "the walk sees the matcher's imports"
     assert find_cycle(graph) is None, " -> ".join(find_cycle(graph) or [])
@@ -71,7 +43,7 @@ def test_the_cycle_check_finds_a_cycle():
 
 
 def test_no_module_imports_another_modules_private_names():
-    trees = modules()  # imports inside functions count too
+    trees = package_modules()  # imports inside functions count too
     private = [f"{name}: from {module} import {n}" for name, tree in trees.items()
-               for module, names in imports(ast.walk(tree), set(trees)) for n in names if n.startswith("_")]
+               for module, names in logiq_imports(ast.walk(tree), set(trees)) for n in names if n.startswith("_")]
     assert not private, private

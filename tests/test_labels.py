@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import gzip
 import math
 import xml.etree.ElementTree as ET
@@ -24,6 +25,7 @@ from logiq_sql.evaluation.labels import (
     load_signals,
 )
 from logiq_sql.readers.sumo import read_fcd, read_vtypes, xml_records
+from tests.source_imports import logiq_imports, package_modules
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests/data/sumo"
@@ -413,37 +415,16 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
 # --------------------------------------------------------------------------------------- independence (13.7)
 
 def _imports_closure(module: str) -> set[str]:
-    """Every logiq_sql module ``module`` imports, directly or through others (read from the source with ast).
-
-    ``from logiq_sql import schema`` depends on ``schema``, not on the package's __init__ (which Python runs for
-    any import of the package and which re-exports the matcher for users).
-    """
-    import ast
-
-    root = Path(__file__).resolve().parents[1]
-
-    def source(name: str) -> Path | None:
-        base = root.joinpath(*name.split("."))
-        for path in (base.with_suffix(".py"), base / "__init__.py"):
-            if path.is_file():
-                return path
-        return None
-
+    """Every logiq_sql module ``module`` imports, directly or through others, at any level (read from the
+    source: tests/source_imports.py)."""
+    trees = package_modules()
     seen, todo = set(), [module]
     while todo:
         name = todo.pop()
-        path = source(name)
-        if name in seen or path is None:
+        if name in seen or name not in trees:
             continue
         seen.add(name)
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("logiq_sql"):
-                submodules = [f"{node.module}.{a.name}" for a in node.names if source(f"{node.module}.{a.name}")]
-                todo += submodules
-                if len(submodules) < len(node.names):  # a name defined in the module (or package) itself
-                    todo.append(node.module)
-            elif isinstance(node, ast.Import):
-                todo += [a.name for a in node.names if a.name.startswith("logiq_sql")]
+        todo += [m for m, _ in logiq_imports(ast.walk(trees[name]), set(trees))]
     return seen - {module}
 
 
