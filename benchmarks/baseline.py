@@ -93,6 +93,11 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
             in_lane = el.dropna(subset=["lane_id"])
             visited = in_lane.groupby(["lane_run", "lane_id"])["t_s"].agg(["min", "max"])
             first_lane = in_lane.sort_values("frame").drop_duplicates("lane_run").set_index("lane_run")["lane_id"]
+            # lanes leaving the road: direct successors of a lane driven in the run, with when it was driven
+            leaving: dict[tuple[int, str], list[tuple[float, float]]] = {}
+            for (run, lane), when in visited.iterrows():
+                for nx in nxt.get((maps[drive_id], lane), ()):
+                    leaving.setdefault((run, nx), []).append((when["min"], when["max"]))
             rows = []
             for actor, a in actors.items():
                 if actor == ego:
@@ -113,8 +118,13 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                     (run, lane) in visited.index and visited.loc[(run, lane), "min"] <= ts
                     and visited.loc[(run, lane), "max"] >= ts - float(p["same_road_limit_s"])
                     for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
+                on_road = (ego_lane == actor_lane) | road | (same & first)
+                # a road user turning off the road still stands between the ego and those behind it
+                turning = ~on_road & np.array([
+                    any(lo <= ts and hi >= ts - float(p["same_road_limit_s"]) for lo, hi in leaving.get((run, lane), ()))
+                    for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
                 keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & (g["lon_gap"] > 0)
-                        & ((ego_lane == actor_lane) | road | (same & first)))
+                        & (on_road | turning))
                 if not keep.any():
                     continue
                 # the gap along an L-shaped path on the ego's axes, never shorter than the distance between boxes
@@ -124,11 +134,12 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 rows.append(pd.DataFrame({
                     "actor_id": actor, "kind": aa["kind"].iloc[0], "frame": frames.to_numpy()[keep],
                     "t_s": ee["t_s"].to_numpy()[keep], "lane_run": ee["lane_run"].to_numpy()[keep],
-                    "gap": gap[keep], "headway": headway[keep]}))
+                    "gap": gap[keep], "headway": headway[keep], "turning": turning[keep]}))
             if not rows:
                 continue
             behind = pd.concat(rows).sort_values(["frame", "gap", "actor_id"]).drop_duplicates("frame")
-            behind = behind[behind["kind"].isin(kinds) & (behind["headway"] >= float(p["min_distance_from_sut_in_time_units_s"]))
+            behind = behind[~behind["turning"] & behind["kind"].isin(kinds)
+                            & (behind["headway"] >= float(p["min_distance_from_sut_in_time_units_s"]))
                             & (behind["headway"] <= float(p["max_distance_from_sut_in_time_units_s"]))]
             for (actor, _run), g in behind.groupby(["actor_id", "lane_run"]):
                 g = g.sort_values("frame")

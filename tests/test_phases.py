@@ -132,6 +132,26 @@ def test_a_car_on_another_approach_to_the_ego_s_lane_is_not_its_follower(tmp_pat
     assert run(make_db(tmp_path, [ego, other], lanes, successors=links), FOLLOWER) == []
 
 
+def test_a_road_user_turning_off_the_ego_s_road_still_stands_between(tmp_path):
+    t = times(10.0)
+    # A leads into X (straight on) and R (a right turn, south from x = 150). The ego drives A then X at 10 m/s,
+    # 15 m ahead of a turner (A then R) and 30 m ahead of a car behind it (A). Until the turner's centre leaves A
+    # (t = 6.7) the turner follows the ego. On R it is no longer on the ego's road, but still between the two:
+    # its follow gap (lon + lat) is less than the car's 25.5 m until t = 7.5 (20.1 + 5.1 m; at 7.6, 21.1 + 6.1),
+    # so the car behind follows the ego from t = 7.6, not from t = 6.8 as when the turner counted for nothing
+    south = dict(lane("R", 0.0), lane_id="R",
+                 polygon_wkt="POLYGON ((150 0, 153.5 0, 153.5 -2000, 150 -2000, 150 0))",
+                 centerline_wkt="LINESTRING (151.75 0, 151.75 -2000)")
+    lanes = [lane("A", 0.0, 0.0, 150.0), lane("X", 0.0, 150.0, 2000.0), south]
+    links = [dict(map_id="road", lane_id="A", successor_id=s, turn=None) for s in ("X", "R")]
+    ego = actor("ego", t, 100 + 10 * t, Y1, is_ego=True)
+    along = 85 + 10 * t
+    turner = actor("t", t, np.minimum(along, 151.75), Y1 - np.maximum(along - 151.75, 0.0))
+    behind = actor("f", t, 70 + 10 * t, Y1)
+    db = make_db(tmp_path, [ego, turner, behind], lanes, successors=links)
+    assert run(db, FOLLOWER, ego="ego") == [("ego", "f", 7.6, 10.0), ("ego", "t", 0.0, 6.7)]
+
+
 def test_the_gap_to_a_follower_is_not_shrunk_by_the_ego_s_turn(tmp_path):
     t = times(6.0)
     # the ego drives east on A, turns north at x = 151.75 (t = 2.175 s) onto N; the actor stays on A, 100 m

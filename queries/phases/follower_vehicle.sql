@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes, tracks
+-- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -17,7 +17,9 @@
 --                        (same_lane). Once the ego has left a lane, a predecessor it did not drive is another
 --                        road: behind a junction every approach is a predecessor of the exit lane
 --   actor_nearest        it is the nearest road user (any kind) behind the ego on its road, by follow_gap_m:
---                        the one that follows the ego; a car behind it follows it, not the ego
+--                        the one that follows the ego; a car behind it follows it, not the ego. A road user
+--                        turning off the ego's road (on a direct successor of a lane of the road, itself not on
+--                        it) still counts as between: the car behind a right-turner follows the right-turner
 --   headway_in_range     follow_headway_s (follow_gap_m / actor speed) in [min_distance_from_sut_in_time_units,
 --                        max_distance_from_sut_in_time_units]
 -- follow_gap_m = greatest(lon_gap_m + lat_gap_m, box_distance_m): an L-shaped path along the ego's axes (lon_gap
@@ -93,13 +95,42 @@ behind as (
     where r.dx_m < 0
 ),
 
+leaving as (
+    -- lanes that turn off the ego's road: the direct successors of the lanes it drove in each lane run
+    select road.drive_id, road.ego_id, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
+    from road
+    inner join drive_inputs as d
+        on road.drive_id = d.drive_id
+    inner join lane_successors as s
+        on d.map_id = s.map_id and road.lane_id = s.lane_id
+),
+
+turning_off as (
+    -- road users behind the ego on a lane leaving its road (within same_road_limit, as for the road itself)
+    select b.drive_id, b.ego_id, b.frame, min(b.follow_gap_m) as follow_gap_m
+    from behind as b
+    inner join leaving as lv
+        on b.drive_id = lv.drive_id and b.ego_id = lv.ego_id and b.lane_run = lv.lane_run
+        and b.actor_lane_id = lv.lane_id
+        and lv.first_s <= b.t_s
+        and lv.last_s >= b.t_s - $same_road_limit_s
+    where b.actor_behind and not b.actor_on_ego_road
+    group by b.drive_id, b.ego_id, b.frame
+),
+
 nearest_gap as (
     -- the follower is the road user right behind the ego on its road, nobody else between them: the least gap
     -- per frame (grouped minima rather than a ranking window: a hash aggregate over the few rows on the road,
-    -- not a sort of them all)
+    -- not a sort of them all), a road user turning off the road counted as between
     select drive_id, ego_id, frame, min(follow_gap_m) as follow_gap_m
-    from behind
-    where actor_behind and actor_on_ego_road
+    from (
+        select drive_id, ego_id, frame, follow_gap_m
+        from behind
+        where actor_behind and actor_on_ego_road
+        union all
+        select drive_id, ego_id, frame, follow_gap_m
+        from turning_off
+    ) as between_ego_and_follower
     group by drive_id, ego_id, frame
 ),
 
