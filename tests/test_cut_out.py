@@ -121,3 +121,28 @@ def test_lateral_motion_is_measured_against_the_lanes_not_a_straight_line(tmp_pa
     phases = result.match_phases.sort("phase_index")
     assert [(r[0], round(r[1], 3), round(r[2], 3)) for r in phases.select("phase", "start_s", "end_s").rows()] == [
         ("ego_on_same_lane", 0.0, 2.5), ("ego_side_of_npc", 2.6, 5.6)]
+
+
+def test_a_car_past_a_turn_off_the_ego_s_road_is_not_ahead_in_its_lane(tmp_path):
+    # A (right lane) and A2 (left lane) end at x = 150; A continues straight as X, and a right turn T (x 150-153.5,
+    # y -3..0) leads onto R (southwards). The ego (x = 60 + 10 t) follows the npc 50 m ahead (bumper gap 45.5 m,
+    # headway 4.55 s) and moves to A2 between t = 5 and 8 s. A car that has turned off stands on R at
+    # x = 151.75, crawling south: R is two links from A, so "the same lane" by the lane graph, and from t = 4.4
+    # its bumper gap (88.6 - 10 t) is less than the npc's. It is not ahead in the ego's lane (the ego never
+    # drives R): the npc stays the car the ego follows, and the ego's lane change is a cut-out from it
+    t = times(10.0)
+    lanes = [lane("A", 0.0, 0.0, 150.0, left="A2"), lane("A2", LANE_W, 0.0, 150.0, right="A"),
+             lane("X", 0.0, 150.0, 2000.0),
+             dict(lane("T", 0.0), lane_id="T", polygon_wkt="POLYGON ((150 -3, 153.5 -3, 153.5 0, 150 0, 150 -3))",
+                  centerline_wkt="LINESTRING (151.75 0, 151.75 -3)"),
+             dict(lane("R", 0.0), lane_id="R",
+                  polygon_wkt="POLYGON ((150 -2000, 153.5 -2000, 153.5 -3, 150 -3, 150 -2000))",
+                  centerline_wkt="LINESTRING (151.75 -3, 151.75 -2000)")]
+    links = [dict(map_id="road", lane_id=a, successor_id=b, turn=turn)
+             for a, b, turn in [("A", "X", "straight"), ("A", "T", "right"), ("T", "R", "right")]]
+    ego = actor("ego", t, 60 + 10 * t, ramp(t, 5.0, Y1, Y2, seconds=3.0), is_ego=True)
+    npc = actor("npc", t, 110 + 10 * t, Y1)
+    turned = actor("turned", t, np.full(t.shape, 151.75), -4.0 - 1.0 * t)
+    db = make_db(tmp_path, [ego, npc, turned], lanes, successors=links)
+    (m,) = intervals(match(db, scenarios=[CUT_OUT], ego="ego").matches, CUT_OUT)
+    assert m[:2] == ("ego", "npc")

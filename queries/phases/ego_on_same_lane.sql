@@ -1,7 +1,7 @@
 -- phase: ego_on_same_lane (sut_cut_out, phase 1)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes
+-- reads: relations, ego_lanes, drive_inputs, lane_successors
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -9,13 +9,33 @@
 --   actor_ahead          entirely ahead of the ego's front bumper (dx > 0 and lon_gap > 0)
 --   actor_in_ego_lane    the actor's lane is the ego's lane or its direct successor/predecessor (same_lane). The
 --                        ego's lane is the lane of its lane run (ego_lanes): while the ego drifts over the line
---                        it is still the old lane, up to the frame before its lane change is counted
+--                        it is still the old lane, up to the frame before its lane change is counted. Not the
+--                        lane after a left or right turn's lane unless the ego drives it in this lane run: a
+--                        car that has turned off is no longer ahead in the lane of an ego going on (tracks are
+--                        recorded, so the ego's own path is known); on the turn's lane it is still partly ahead
 --   actor_nearest        it is the nearest road user (any kind) ahead of the ego in that lane: the one the ego
 --                        follows
 --   headway_in_range     time headway (gap / ego speed) in [min_distance_from_sut_in_time_units,
 --                        max_distance_from_sut_in_time_units]
 -- segment = the ego's lane run, so the phase ends at the latest on the frame before the ego's lane change.
 with
+
+turned_onto as (
+    -- the lanes a left or right turn leads onto from a lane, past the turn (a car still on the turn's own lane,
+    -- inside the junction, is partly in front of the ego yet)
+    select s.map_id, s.lane_id, n.successor_id as turn_lane_id
+    from lane_successors as s
+    inner join lane_successors as n
+        on s.map_id = n.map_id and s.successor_id = n.lane_id
+    where s.turn in ('left', 'right', 'u_turn')
+),
+
+run_lanes as (
+    -- the lanes the ego drives in each lane run
+    select distinct drive_id, ego_id, lane_run, lane_id
+    from ego_lanes
+    where lane_id is not null
+),
 
 ahead as (
     select
@@ -31,10 +51,17 @@ ahead as (
         r.lon_gap_m,
         r.time_headway_s,
         r.lon_gap_m > 0 as actor_ahead,
-        r.same_lane as actor_in_ego_lane
+        r.same_lane and (turn.turn_lane_id is null or driven.lane_id is not null) as actor_in_ego_lane
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
+    inner join drive_inputs as d
+        on r.drive_id = d.drive_id
+    left join turned_onto as turn
+        on d.map_id = turn.map_id and el.lane_id = turn.lane_id and r.actor_lane_id = turn.turn_lane_id
+    left join run_lanes as driven
+        on el.drive_id = driven.drive_id and el.ego_id = driven.ego_id and el.lane_run = driven.lane_run
+        and r.actor_lane_id = driven.lane_id
     where r.dx_m > 0
 ),
 
