@@ -6,7 +6,9 @@ The one geometric step of junction matching that is not SQL (like localisation a
     path            the centre line of an actor's positions from its junction entry to its exit, swept by
                     half its box width on each side (flat ends): the area its box covers inside the junction.
                     Its vertices are the mean positions of the rows over each PATH_STEP_M (0.5 m) of s_m, so a
-                    car that waits with a jittering position is one point, not a knot of zig-zags
+                    car that waits with a jittering position is one point, not a knot of zig-zags, then smoothed
+                    over SMOOTH_M (1 m) of s_m either side, so a car passing at speed (one row per stretch) does
+                    not carry its position jitter into a band wider than its path
     area            ego path ∩ actor path (the "shared area where its path intersects the Ego's path inside
                     the junction"); pairs whose paths do not overlap get no row
     *_occupancy_    the stretch of each actor's own path (actor_paths.s_m of its box centre) along which its box
@@ -40,7 +42,22 @@ ENCROACHMENTS_SCHEMA = {
 ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 PATH_STEP_M = 0.5  # a path's vertices: the mean position of its rows over each 0.5 m of s_m
+SMOOTH_M = 1.0  # then the mean of the vertices within 1 m of s_m either side
 CAR_LENGTH_M, CAR_WIDTH_M = DEFAULT_SIZE_M["vehicle"]  # a passage whose rows have no size: a car's box
+
+
+def _smoothed(coords: pl.DataFrame) -> pl.DataFrame:
+    """Each vertex's position and heading the mean of the vertices of its line within SMOOTH_M of s_m on either
+    side: a fast actor has one row per stretch, so its line would carry every jitter of its positions, and a
+    buffered zig-zag is wider than the path. Vectorised: cumulative sums over the lines sorted by (k, piece)."""
+    key = coords["k"].to_numpy() * 10**9 + coords["piece"].to_numpy().astype(np.int64)
+    reach = int(round(SMOOTH_M / PATH_STEP_M))
+    lo, hi = np.searchsorted(key, key - reach, "left"), np.searchsorted(key, key + reach, "right")
+    out = {}
+    for col in ("x_m", "y_m", "sin", "cos"):
+        total = np.concatenate([[0.0], np.cumsum(coords[col].to_numpy())])
+        out[col] = (total[hi] - total[lo]) / (hi - lo)
+    return coords.with_columns(**{c: pl.Series(v) for c, v in out.items()})
 
 
 def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
@@ -74,7 +91,8 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     coords = (keyed.group_by("k", (pl.col("s_m") / PATH_STEP_M).floor().alias("piece"))
               .agg(pl.col("x_m").mean(), pl.col("y_m").mean(), pl.col("s_m").mean(),
                    pl.col("heading_rad").sin().mean().alias("sin"), pl.col("heading_rad").cos().mean().alias("cos"))
-              .sort("k", "piece").select("k", "x_m", "y_m", "s_m", pl.arctan2("sin", "cos").alias("heading_rad")))
+              .sort("k", "piece"))
+    coords = _smoothed(coords).select("k", "x_m", "y_m", "s_m", pl.arctan2("sin", "cos").alias("heading_rad"))
     # a passage that stays within one stretch has no line: repeat its point so every passage has one
     single = coords.group_by("k").len().filter(pl.col("len") == 1)["k"]
     coords = pl.concat([coords, coords.filter(pl.col("k").is_in(single.implode()))]).sort("k", maintain_order=True)

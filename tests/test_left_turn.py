@@ -232,3 +232,22 @@ def test_a_left_turner_waiting_clear_of_the_oncoming_lane_yields(tmp_path):
     assert 4.5 < enc["ego_occupancy_from_s_m"] - 18 < 5.2
     assert result.matches.select("actor_id").rows() == [("car",)]
 
+
+
+def test_an_oncoming_car_s_jitter_does_not_widen_its_path(tmp_path):
+    """The same drive with the oncoming car's positions jittering 0.3 m sideways from frame to frame (a
+    perception stack's tracks; one row per 0.5 m stretch at its speed): its path's vertices are smoothed over
+    1 m of s_m either side (docs/semantics.md), so its swept path is not widened by the zig-zag, the area and the
+    ego's occupancy stay where they were on clean tracks, and the waiting ego still yields."""
+    ego = drive("ego", T, creeping_ego_s(T), "S_left", is_ego=True)
+    car = drive("car", T, oncoming_s(T, enters_at=9.0), "N_straight")
+    clean = make_junction_db(tmp_path / "clean", [ego, car])
+    zigzag = 0.3 * np.where(np.arange(len(T)) % 2 == 0, 1.0, -1.0)
+    jittered = make_junction_db(tmp_path / "jitter", [ego, car.with_columns(pl.col("x_m") + zigzag)])
+    got = {}
+    for name, path in (("clean", clean), ("jitter", jittered)):
+        result = match(path, [SCENARIO], keep=True)
+        with duckdb.connect(str(path), read_only=True) as con:
+            got[name] = con.execute("select ego_occupancy_from_s_m from encroachments").fetchone()[0]
+        assert result.matches.select("actor_id").rows() == [("car",)], name
+    assert abs(got["jitter"] - got["clean"]) < 0.3, got
