@@ -120,8 +120,9 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                     for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
                 on_road = (ego_lane == actor_lane) | road | (same & first)
                 # a road user turning off the road still stands between the ego and those behind it
+                limit_s = float(p["same_road_limit_s"])
                 turning = ~on_road & np.array([
-                    any(lo <= ts and hi >= ts - float(p["same_road_limit_s"]) for lo, hi in leaving.get((run, lane), ()))
+                    any(lo <= ts and hi >= ts - limit_s for lo, hi in leaving.get((run, lane), ()))
                     for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
                 keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & (g["lon_gap"] > 0)
                         & (on_road | turning))
