@@ -124,7 +124,7 @@ def test_without_a_map_the_scenarios_that_need_none_still_run(nuscenes):
     assert sorted(reasons) == sorted(s.name for s in list_scenarios() if s.name != "cyclist_close_to_moving_sut")
     assert reasons["follower_vehicle"] == (
         "follower_vehicle cannot run without lanes: queries/phases/follower_vehicle.sql reads ego_lanes (built from "
-        "lanes). Fix: pass lanes= to match_frames (columns in docs/tables.md).")
+        "lanes), lane_successors (built from lanes). Fix: pass lanes= to match_frames (columns in docs/tables.md).")
     assert reasons[LEFT_TURN].startswith(f"{LEFT_TURN} cannot run without lanes, junctions, traffic_light_states, "
                                          "traffic_lights: ")
     assert set(bare.drive_scenarios["scenario"]) == {"cyclist_close_to_moving_sut"}
