@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -44,7 +45,8 @@ def test_the_wheel_carries_its_sql_and_runs_outside_the_checkout(tmp_path):
                            env=env, capture_output=True, text=True, check=True).stdout
     assert where.startswith(str(site))  # the installed copy, not the checkout
     assert "follower_vehicle  (scenario; extends logiq_base_lane_following_scenario" in cli("scenarios")
-    assert "-- scenario follower_vehicle (version 2)" in cli("render", "follower_vehicle")
+    version = tomllib.loads((ROOT / "scenarios/follower_vehicle.toml").read_text())["version"]
+    assert f"-- scenario follower_vehicle (version {version})" in cli("render", "follower_vehicle")
     # the README's quickstart, with a drive from the checkout's data
     assert "1 drive(s) ingested, 0 rejected" in cli("ingest", "commonroad", str(DRIVE), "--db", "drives.duckdb")
     assert "follower_vehicle:" in cli("match", "--db", "drives.duckdb", "--scenario", "follower_vehicle",
