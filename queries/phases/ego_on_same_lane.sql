@@ -22,8 +22,8 @@ with
 
 turned_onto as (
     -- the lanes a left or right turn leads onto from a lane, past the turn (a car still on the turn's own lane,
-    -- inside the junction, is partly in front of the ego yet)
-    select s.map_id, s.lane_id, n.successor_id as turn_lane_id
+    -- inside the junction, is partly in front of the ego yet); distinct: two turns onto one lane give one row
+    select distinct s.map_id, s.lane_id, n.successor_id as turn_lane_id
     from lane_successors as s
     inner join lane_successors as n
         on s.map_id = n.map_id and s.successor_id = n.lane_id
