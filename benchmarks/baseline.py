@@ -67,6 +67,27 @@ def _islands(frames: np.ndarray) -> np.ndarray:
     return frames - np.arange(len(frames))
 
 
+def _bound_elsewhere(ts, runs, ego_lane, actor_lane, road, behind, in_range, visited, nxt, map_id,
+                     limit_s) -> np.ndarray:
+    """Per frame: the actor is on a lane of the ego's road that the ego has left together with its successor, and,
+    within limit_s of leaving it, drives on into a successor of it but never into a lane the ego entered after it."""
+    ego_next = np.array([e in nxt.get((map_id, a), ()) for e, a in zip(ego_lane, actor_lane, strict=True)],
+                        dtype=bool)
+    left = road & (actor_lane != ego_lane) & ~ego_next
+    first = np.array([visited.loc[(run, lane), "min"] if lf else np.nan
+                      for run, lane, lf in zip(runs, actor_lane, left, strict=True)], dtype=float)
+    seen = left & behind & in_range
+    lanes_of_actor = pd.notna(actor_lane)
+    bound = set()
+    for lane, lane_first in {(a, f) for a, f in zip(actor_lane[seen], first[seen], strict=True)}:
+        last = ts[seen & (actor_lane == lane) & (first == lane_first)].max()
+        after = set(actor_lane[in_range & lanes_of_actor & (ts > last) & (ts <= last + limit_s) & (actor_lane != lane)])
+        entered_later = {x for (_, x), when in visited.iterrows() if when["min"] > lane_first}
+        if after & nxt.get((map_id, lane), set()) and not after & entered_later:
+            bound.add(lane)
+    return left & np.isin(actor_lane, list(bound))
+
+
 def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: float) -> pd.DataFrame:
     kinds = {k for k in str(p["kinds_csv"]).split(",") if k}
     lanes = _actor_lanes(t["track_lanes"], float(p["lane_calculation_tolerance_length_m"]))
@@ -124,6 +145,10 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 turning = ~on_road & np.array([
                     any(lo <= ts and hi >= ts - limit_s for lo, hi in leaving.get((run, lane), ()))
                     for run, lane, ts in zip(ee["lane_run"], actor_lane, ee["t_s"], strict=True)])
+                # an actor bound for another exit stands between but does not follow
+                elsewhere = _bound_elsewhere(ee["t_s"].to_numpy(), ee["lane_run"].to_numpy(), ego_lane, actor_lane,
+                                             road, g["dx"] < 0, g["dist2"] <= limit * limit, visited, nxt,
+                                             maps[drive_id], limit_s)
                 keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & (g["lon_gap"] > 0)
                         & (on_road | turning))
                 if not keep.any():
@@ -135,11 +160,12 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 rows.append(pd.DataFrame({
                     "actor_id": actor, "kind": aa["kind"].iloc[0], "frame": frames.to_numpy()[keep],
                     "t_s": ee["t_s"].to_numpy()[keep], "lane_run": ee["lane_run"].to_numpy()[keep],
-                    "gap": gap[keep], "headway": headway[keep], "turning": turning[keep]}))
+                    "gap": gap[keep], "headway": headway[keep], "turning": turning[keep],
+                    "elsewhere": elsewhere[keep]}))
             if not rows:
                 continue
             behind = pd.concat(rows).sort_values(["frame", "gap", "actor_id"]).drop_duplicates("frame")
-            behind = behind[~behind["turning"] & behind["kind"].isin(kinds)
+            behind = behind[~behind["turning"] & ~behind["elsewhere"] & behind["kind"].isin(kinds)
                             & (behind["headway"] >= float(p["min_distance_from_sut_in_time_units_s"]))
                             & (behind["headway"] <= float(p["max_distance_from_sut_in_time_units_s"]))]
             for (actor, _run), g in behind.groupby(["actor_id", "lane_run"]):

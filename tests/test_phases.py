@@ -152,6 +152,29 @@ def test_a_road_user_turning_off_the_ego_s_road_still_stands_between(tmp_path):
     assert run(db, FOLLOWER, ego="ego") == [("ego", "f", 7.6, 10.0), ("ego", "t", 0.0, 6.7)]
 
 
+def test_an_actor_bound_for_another_exit_stops_following_once_the_ego_is_past_the_fork(tmp_path):
+    t = times(8.0)
+    # A forks into J (straight on, 10 m of junction) and R (a right turn, south from x = 146.5-150); J leads into
+    # X. The ego drives A, J, X at 10 m/s from x = 130: its centre is in X from t = 3.1. The turner, 20 m behind
+    # (bumper gap 15.5 m, 1.55 s), turns south at x = 148.25 (t = 3.825) and is on A until t = 4.0, then on R.
+    # While the ego is on A or on J (A's successor) the turner follows it; once the ego is on X, past the fork, a
+    # car on A bound for R does not: it follows from 0.0 to 3.0 (with the old rule until 3.9, the turn's growing
+    # gap ending it). A car going straight on follows the ego the whole time
+    south = dict(lane("R", 0.0), lane_id="R",
+                 polygon_wkt="POLYGON ((146.5 0, 150 0, 150 -2000, 146.5 -2000, 146.5 0))",
+                 centerline_wkt="LINESTRING (148.25 0, 148.25 -2000)")
+    lanes = [lane("A", 0.0, 0.0, 150.0), lane("J", 0.0, 150.0, 160.0), lane("X", 0.0, 160.0, 2000.0), south]
+    links = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A", "J"), ("A", "R"), ("J", "X"))]
+    ego = actor("ego", t, 130 + 10 * t, Y1, is_ego=True)
+    along = 110 + 10 * t
+    turner = actor("t", t, np.minimum(along, 148.25), Y1 - np.maximum(along - 148.25, 0.0))
+    straight = actor("s", t, along, Y1)
+    assert run(make_db(tmp_path / "turner", [ego, turner], lanes, successors=links), FOLLOWER) == [
+        ("ego", "t", 0.0, 3.0)]
+    assert run(make_db(tmp_path / "straight", [ego, straight], lanes, successors=links), FOLLOWER) == [
+        ("ego", "s", 0.0, 8.0)]
+
+
 def test_the_gap_to_a_follower_is_not_shrunk_by_the_ego_s_turn(tmp_path):
     t = times(6.0)
     # the ego drives east on A, turns north at x = 151.75 (t = 2.175 s) onto N; the actor stays on A, 100 m

@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors
+-- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors, actor_lanes
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -16,6 +16,12 @@
 --                        its lane run, so where it came from is unknown) its direct predecessor/successor
 --                        (same_lane). Once the ego has left a lane, a predecessor it did not drive is another
 --                        road: behind a junction every approach is a predecessor of the exit lane
+--   actor_path_follows_ego  on a lane of the ego's road that the ego has left, and its direct successor too
+--                        (the ego is past the fork of a junction), the actor is not bound elsewhere: it does not,
+--                        within same_road_limit of leaving that lane, drive on into a successor of it without ever
+--                        entering a lane the ego entered after it. An actor bound for another exit no longer follows
+--                        the ego once the ego is through the fork (it still stands between the ego and those behind
+--                        it); one that leaves the lane by a lane change, or is not seen leaving it, still does
 --   actor_nearest        it is the nearest road user (any kind) behind the ego on its road, by follow_gap_m:
 --                        the one that follows the ego; a car behind it follows it, not the ego. A road user
 --                        turning off the ego's road (on a direct successor of a lane of the road, itself not on
@@ -79,7 +85,10 @@ behind as (
             or road.lane_id is not null
             or (r.same_lane and fl.lane_id = el.lane_id),
             false
-        ) as actor_on_ego_road
+        ) as actor_on_ego_road,
+        -- the lane of the road the actor is on, when the ego has left it and its successor too (so is past a fork)
+        case when road.lane_id is not null and r.actor_lane_id <> el.lane_id and next_lane.lane_id is null
+            then road.first_s end as left_lane_first_s
     from relations as r
     inner join ego_lanes as el
         on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
@@ -92,7 +101,41 @@ behind as (
         and r.actor_lane_id = road.lane_id
         and road.first_s <= r.t_s
         and road.last_s >= r.t_s - $same_road_limit_s
+    left join drive_inputs as d
+        on r.drive_id = d.drive_id
+    left join lane_successors as next_lane
+        on d.map_id = next_lane.map_id and r.actor_lane_id = next_lane.lane_id and el.lane_id = next_lane.successor_id
     where r.dx_m < 0
+),
+
+left_lanes as (
+    -- actors behind the ego on a lane of its road that the ego has left: the lane, and when the actor was last on it
+    select drive_id, ego_id, actor_id, actor_lane_id, left_lane_first_s, max(t_s) as last_on_lane_s
+    from behind
+    where left_lane_first_s is not null
+    group by drive_id, ego_id, actor_id, actor_lane_id, left_lane_first_s
+),
+
+diverging as (
+    -- of those, the actors that, within same_road_limit of leaving that lane, drive on into one of its successors
+    -- but never into a lane the ego entered after it: bound for another exit (the pair's own relation rows: the actor
+    -- is near the ego meanwhile). An actor that leaves by a lane change is not bound elsewhere by this rule
+    select l.drive_id, l.ego_id, l.actor_id, l.actor_lane_id
+    from left_lanes as l
+    inner join drive_inputs as d
+        on l.drive_id = d.drive_id
+    inner join relations as r
+        on l.drive_id = r.drive_id and l.ego_id = r.ego_id and l.actor_id = r.actor_id
+        and r.t_s > l.last_on_lane_s and r.t_s <= l.last_on_lane_s + $same_road_limit_s
+        and r.actor_lane_id <> l.actor_lane_id
+    left join lane_successors as onward
+        on d.map_id = onward.map_id and l.actor_lane_id = onward.lane_id and r.actor_lane_id = onward.successor_id
+    left join (select distinct drive_id, ego_id, lane_id, first_s from road) as later
+        on r.drive_id = later.drive_id and r.ego_id = later.ego_id and r.actor_lane_id = later.lane_id
+        and later.first_s > l.left_lane_first_s
+    group by l.drive_id, l.ego_id, l.actor_id, l.actor_lane_id
+    having max(case when onward.lane_id is not null then 1 else 0 end) = 1
+        and max(case when later.lane_id is not null then 1 else 0 end) = 0
 ),
 
 leaving as (
@@ -147,10 +190,14 @@ nearest as (
 ranked as (
     select
         b.*,
-        n.actor_id is not null as is_nearest
+        n.actor_id is not null as is_nearest,
+        dv.actor_id is null as actor_path_follows_ego
     from behind as b
     left join nearest as n
         on b.drive_id = n.drive_id and b.ego_id = n.ego_id and b.frame = n.frame and b.actor_id = n.actor_id
+    left join diverging as dv
+        on b.drive_id = dv.drive_id and b.ego_id = dv.ego_id and b.actor_id = dv.actor_id
+        and b.actor_lane_id = dv.actor_lane_id and b.left_lane_first_s is not null
 ),
 
 conditions as (
@@ -165,6 +212,7 @@ conditions as (
         instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
         actor_behind,
         actor_on_ego_road,
+        actor_path_follows_ego,
         actor_behind and actor_on_ego_road and is_nearest as actor_nearest,
         coalesce(follow_headway_s >= $min_distance_from_sut_in_time_units_s
             and follow_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
@@ -179,6 +227,6 @@ conditions as (
 
 select
     *,
-    ego_in_lane and actor_kind_ok and actor_behind and actor_on_ego_road and actor_nearest and headway_in_range
-        as holds
+    ego_in_lane and actor_kind_ok and actor_behind and actor_on_ego_road and actor_path_follows_ego
+        and actor_nearest and headway_in_range as holds
 from conditions
