@@ -11,6 +11,10 @@ against the lane itself; ``distance`` is computed once, only for the points outs
 Chunks of points run on a thread pool (shapely and Polars release the GIL). GEOS geometries, prepared ones above
 all, are not safe to share between threads (they build caches on first use: libgeos/geos#825; a shared index
 corrupted the heap once in a 50 M-row ingest), so every worker thread queries its own copies of the lanes.
+
+Localisation as a relational join (a per-map grid of lane pieces, the per-row arithmetic in SQL) was measured on
+2026-11-26 (``benchmarks/localise_join.py``): the same rows, but about twice the CPU, so ingest keeps this module
+(``benchmarks/README.md``).
 """
 
 from __future__ import annotations
