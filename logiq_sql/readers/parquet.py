@@ -146,10 +146,77 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
                                       f"it from {Path(drives_where).name}.")
     for chunk_ids in batches(sizes.iter_rows(), CHUNK_ROWS):
         chunk = lazy.filter(pl.col("drive_id").is_in(chunk_ids)).collect()
-        for (drive_id,), rows in chunk.group_by("drive_id", maintain_order=True):
-            yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), parts, tracks_where, drives_where,
-                         source_format)
+        in_chunk = chunk.group_by("drive_id", maintain_order=True).len()
+        # the drives of a chunk are checked and cast a million rows at a time (memory stays that of a chunk)
+        for part_ids in batches(in_chunk.iter_rows(), SPLIT_ROWS):
+            part = chunk if len(part_ids) == in_chunk.height else chunk.filter(pl.col("drive_id").is_in(part_ids))
+            drives = _drives_at_once(part, drives_meta, parts, tracks_where, drives_where, source_format)
+            if drives is None:  # a column does not convert: drive by drive, which says where (and yields before)
+                for (drive_id,), rows in part.group_by("drive_id", maintain_order=True):
+                    yield _drive(str(drive_id), rows, drives_meta.get(str(drive_id), {}), parts, tracks_where,
+                                 drives_where, source_format)
+                continue
+            del part
+            drives.reverse()
+            while drives:  # each drive's rows go once the caller is done with them
+                yield drives.pop()
         del chunk
+
+
+# the drives of a chunk are cast and split this many rows at a time: one cast of many drives instead of one per
+# drive, without a second copy of a whole chunk
+SPLIT_ROWS = 1_000_000
+
+
+def _drives_at_once(rows: pl.DataFrame, drives_meta: dict[str, dict], maps: dict[str, _Parts],
+                    tracks_file: str | Path, drives_file: str | Path, source_format: str) -> list[DriveData] | None:
+    """What ``_drive`` gives for each drive of ``rows`` (in order of first row), with the columns cast once for
+    all of them; None when a column does not convert (``_drive``, drive by drive, then says where)."""
+    sizes = rows.group_by("drive_id", maintain_order=True).len()
+    refused: dict[str, DriveData] = {}
+    periods: dict[str, float] = {}
+    derive = []
+    for drive_id, n in sizes.iter_rows():
+        meta = drives_meta.get(drive_id, {})
+        bad = _bad_period(drive_id, meta, n, tracks_file, drives_file, source_format)
+        if bad is not None:
+            refused[drive_id] = bad
+        elif not meta.get("dt_s"):
+            derive.append(drive_id)
+        else:
+            periods[drive_id] = meta["dt_s"]
+    if derive:  # no dt_s given: each drive's own median step of t_s
+        own = rows.filter(pl.col("drive_id").is_in(derive)).partition_by("drive_id", as_dict=True)
+        periods.update({drive_id: _sample_period({}, own[(drive_id,)]) for drive_id in derive})
+    if refused:
+        rows = rows.filter(~pl.col("drive_id").is_in(list(refused)))
+    if "frame" not in rows.columns:
+        if rows.schema.get("t_s") != pl.Float64:
+            return None  # t_s / dt in t_s's own type: drive by drive, as _drive divides
+        period = (pl.col("drive_id").replace_strict(periods, return_dtype=pl.Float64) if periods
+                  else pl.lit(None, pl.Float64))  # no rows left
+        # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
+        rows = rows.with_columns(frame=(pl.col("t_s") / period).round().cast(pl.Int64, strict=False))
+    if "is_ego" not in rows.columns:
+        rows = rows.with_columns(is_ego=pl.lit(False))
+    try:
+        tracks = check_table(rows, schema.TRACKS, tracks_file, REQUIRED)
+    except InputError:
+        return None
+    del rows
+    egos = dict(tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())
+                .group_by("drive_id").agg(pl.col("actor_id").unique().sort()).iter_rows())
+    split = tracks.partition_by("drive_id", as_dict=True, maintain_order=True) if tracks.height else {}
+    del tracks
+    out = []
+    for drive_id, n in sizes.iter_rows():
+        if drive_id in refused:
+            out.append(refused.pop(drive_id))
+        else:
+            out.append(_read_drive(drive_id, split.pop((drive_id,)), n, periods[drive_id],
+                                   drives_meta.get(drive_id, {}), maps, egos.get(drive_id, []), tracks_file,
+                                   source_format))
+    return out
 
 
 class _Parts:
@@ -165,27 +232,48 @@ class _Parts:
 
 def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, _Parts], tracks_file: str | Path,
            drives_file: str | Path, source_format: str) -> DriveData:
-    dt = meta.get("dt_s")
-    if dt is not None and not (math.isfinite(dt) and dt > 0):
-        return DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_file), dt_s=math.nan,
-                         tracks=pl.DataFrame(), map_id=meta.get("map_id"), rows_read=rows.height,
-                         reject_reason=f"{drives_file}: drive '{drive_id}' has dt_s = "
-                                       f"{dt}. Fix: write the sample period in seconds (> 0), or leave it NULL to "
-                                       "derive it from t_s.")
-    if not dt:
-        steps = rows.select(pl.col("t_s").filter(pl.col("t_s").is_finite()).unique().sort().diff().drop_nulls())
-        dt = float(steps["t_s"].median()) if steps.height else None
-    dt = dt if dt and dt > 0 else 0.1
+    bad = _bad_period(drive_id, meta, rows.height, tracks_file, drives_file, source_format)
+    if bad is not None:
+        return bad
+    dt = _sample_period(meta, rows)
     if "frame" not in rows.columns:
         # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
         rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64, strict=False))
     if "is_ego" not in rows.columns:
         rows = rows.with_columns(is_ego=pl.lit(False))
     tracks = check_table(rows, schema.TRACKS, tracks_file, REQUIRED)
+    egos = tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())["actor_id"].unique().sort().to_list()
+    return _read_drive(drive_id, tracks, rows.height, dt, meta, maps, egos, tracks_file, source_format)
+
+
+def _bad_period(drive_id: str, meta: dict, rows_read: int, tracks_file: str | Path, drives_file: str | Path,
+                source_format: str) -> DriveData | None:
+    """The drive rejected, when drives.parquet gives it a dt_s that is not a positive number."""
+    dt = meta.get("dt_s")
+    if dt is not None and not (math.isfinite(dt) and dt > 0):
+        return DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_file), dt_s=math.nan,
+                         tracks=pl.DataFrame(), map_id=meta.get("map_id"), rows_read=rows_read,
+                         reject_reason=f"{drives_file}: drive '{drive_id}' has dt_s = "
+                                       f"{dt}. Fix: write the sample period in seconds (> 0), or leave it NULL to "
+                                       "derive it from t_s.")
+    return None
+
+
+def _sample_period(meta: dict, rows: pl.DataFrame) -> float:
+    """dt_s as drives.parquet gives it, else the median step of the drive's t_s (0.1 when it has none)."""
+    dt = meta.get("dt_s")
+    if not dt:
+        steps = rows.select(pl.col("t_s").filter(pl.col("t_s").is_finite()).unique().sort().diff().drop_nulls())
+        dt = float(steps["t_s"].median()) if steps.height else None
+    return dt if dt and dt > 0 else 0.1
+
+
+def _read_drive(drive_id: str, tracks: pl.DataFrame, rows_read: int, dt: float, meta: dict, maps: dict[str, _Parts],
+                egos: list[str], tracks_file: str | Path, source_format: str) -> DriveData:
+    """The drive of its cast rows (``egos``: the actor ids with is_ego = true, sorted)."""
     map_id = meta.get("map_id")
     drive = DriveData(drive_id=drive_id, source_format=source_format, source_path=str(tracks_file), dt_s=dt,
-                      tracks=tracks, map_id=map_id, rows_read=rows.height, attribution=meta.get("attribution"))
-    egos = tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())["actor_id"].unique().sort().to_list()
+                      tracks=tracks, map_id=map_id, rows_read=rows_read, attribution=meta.get("attribution"))
     if len(egos) > 1:
         drive.tracks = tracks.clear()
         drive.reject_reason = (f"{tracks_file}: drive '{drive_id}' has {len(egos)} actors with is_ego = true "

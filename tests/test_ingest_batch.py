@@ -1,0 +1,241 @@
+"""Ingest's checks over a whole batch (``ingestion.clean_batch``) and the Parquet reader's one cast per chunk
+(``readers.parquet._drives_at_once``) give exactly what checking and casting drive by drive gives: the same
+drives, rows, counts and messages, for a batch mixing good drives with every kind of bad one.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import polars as pl
+import pytest
+
+from logiq_sql import ingest, ingestion
+from logiq_sql.errors import InputError
+from logiq_sql.readers import parquet
+from tests.helpers import TWO_LANES, Y1, actor, times
+
+T = times(5)
+
+
+def scene(drive_id: str) -> pl.DataFrame:
+    return pl.concat([actor("ego", T, 100 + 10 * T, Y1, is_ego=True, drive_id=drive_id),
+                      actor("a", T, 80 + 10 * T, Y1, drive_id=drive_id)])
+
+
+def nth(*rows: int) -> pl.Expr:
+    """True on these row numbers."""
+    return pl.int_range(pl.len()).is_in(list(rows))
+
+
+def mixed(frame: bool = False) -> tuple[pl.DataFrame, dict[str, float | None]]:
+    """One tracks table of many drives, most spoiled in one way each, and each drive's dt_s for drives.parquet;
+    ``frame``: with a frame column (else each row's frame is derived from t_s and dt_s)."""
+    drives = {
+        "good": scene("good"),
+        "shuffled": scene("shuffled").sample(fraction=1.0, shuffle=True, seed=7),
+        "unknown_kind": scene("unknown_kind").with_columns(kind=pl.when(nth(5)).then(pl.lit("car"))
+                                                           .otherwise(pl.col("kind"))),
+        "degrees": scene("degrees").with_columns(heading_rad=pl.lit(90.0)),
+        "milliseconds": scene("milliseconds").with_columns(pl.col("t_s") * 1000),
+        "millimetres": scene("millimetres").with_columns(pl.col("x_m") * 1000, pl.col("y_m") * 1000),
+        "bad_rows": scene("bad_rows").with_columns(
+            x_m=pl.when(nth(3)).then(float("nan")).when(nth(4)).then(2e8)
+            .otherwise(pl.col("x_m")),
+            t_s=pl.when(nth(7)).then(float("inf")).otherwise(pl.col("t_s")),
+            actor_id=pl.when(nth(60)).then(None).otherwise(pl.col("actor_id")),
+            kind=pl.when(nth(61)).then(None).otherwise(pl.col("kind"))),
+        "broken_values": scene("broken_values").with_columns(
+            speed_mps=pl.when(nth(10)).then(5000.0).otherwise(10.0),
+            accel_mps2=pl.when(nth(11, 12)).then(-2000.0).when(nth(13)).then(float("inf")),
+            heading_rad=pl.when(nth(14)).then(float("nan")).otherwise(0.0),
+            length_m=pl.when(nth(15)).then(0.0).otherwise(pl.col("length_m")),
+            width_m=pl.when(nth(16)).then(float("nan")).otherwise(pl.col("width_m"))),
+        "duplicates": pl.concat([
+            scene("duplicates"), scene("duplicates").head(3),  # exact copies
+            scene("duplicates").filter((pl.col("actor_id") == "a") & (pl.col("t_s") == 2.5))
+            .with_columns(pl.col("x_m") + 3),  # a contradiction
+            scene("duplicates").filter((pl.col("actor_id") == "a") & (pl.col("t_s") == 2.0))
+            .with_columns(pl.col("t_s") + 0.04, pl.col("x_m") + 0.4)]),  # a second sample in frame 20
+        # a second sample in frame 20, after and before the others (a sort may keep either order of the two)
+        "second_sample": pl.concat([scene("second_sample"), scene("second_sample").filter(
+            (pl.col("actor_id") == "a") & (pl.col("t_s") == 2.0)).with_columns(pl.col("t_s") + 0.04)]),
+        "second_sample_first": pl.concat([scene("second_sample_first").filter(
+            (pl.col("actor_id") == "a") & (pl.col("t_s") == 2.0)).with_columns(pl.col("t_s") + 0.04),
+            scene("second_sample_first")]),
+        "every_row_bad": scene("every_row_bad").with_columns(x_m=pl.lit(float("nan"))),
+        "two_egos": scene("two_egos").with_columns(is_ego=pl.lit(True)),
+        "bad_period": scene("bad_period"),
+        "long_period": scene("long_period"),
+        "no_period": scene("no_period"),
+        "contradicted_period": scene("contradicted_period"),
+        "cyclist": scene("cyclist").with_columns(kind=pl.lit("cyclist"), length_m=pl.lit(None, pl.Float64)),
+    }
+    periods: dict[str, float | None] = {d: 0.1 for d in drives}
+    periods.update(bad_period=-0.1, long_period=100.0, no_period=None, contradicted_period=0.05, listed_only=0.1)
+    # two drives whose rows alternate in the file (a drive's rows need not be together)
+    a, b = scene("alternating_a"), scene("alternating_b")
+    alternating = pl.concat([a.with_row_index("_i"), b.with_row_index("_i")]).sort("_i", maintain_order=True)
+    periods.update(alternating_a=0.1, alternating_b=0.1)
+    tracks = pl.concat([*drives.values(), alternating.drop("_i")], how="diagonal_relaxed")
+    if frame:
+        tracks = tracks.with_columns(frame=(pl.col("t_s") * 10).round().cast(pl.Int64, strict=False))
+        # one actor at one t_s in two frames: two rows that contradict each other
+        same_t = scene("same_time").with_columns(frame=(pl.col("t_s") * 10).round().cast(pl.Int64))
+        same_t = same_t.with_columns(t_s=pl.when(nth(30)).then(pl.col("t_s").shift()).otherwise(pl.col("t_s")))
+        tracks = pl.concat([tracks, same_t], how="diagonal_relaxed")
+        periods["same_time"] = 0.1
+    return tracks, periods
+
+
+def write(folder: Path, tracks: pl.DataFrame, periods: dict[str, float | None]) -> Path:
+    folder.mkdir(parents=True)
+    tracks.write_parquet(folder / "tracks.parquet")
+    pl.DataFrame({"drive_id": list(periods), "dt_s": list(periods.values()), "map_id": "road"},
+                 schema={"drive_id": pl.String, "dt_s": pl.Float64, "map_id": pl.String}
+                 ).write_parquet(folder / "drives.parquet")
+    pl.DataFrame(TWO_LANES).write_parquet(folder / "lanes.parquet")
+    return folder
+
+
+def drive_by_drive(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The code before the batch checks: every drive cast and checked on its own."""
+    monkeypatch.setattr(parquet, "_drives_at_once", lambda *args: None)
+    monkeypatch.setattr(ingestion, "clean_batch", lambda drives: {})
+
+
+def same_drives(got: list, want: list) -> None:
+    assert [d.drive_id for d in got] == [d.drive_id for d in want]
+    for g, w in zip(got, want, strict=True):
+        for name in w.__dataclass_fields__:
+            a, b = getattr(g, name), getattr(w, name)
+            if isinstance(b, pl.DataFrame):
+                assert a.schema == b.schema and a.equals(b, null_equal=True), (w.drive_id, name)
+            else:
+                assert a == b or (isinstance(b, float) and math.isnan(a) and math.isnan(b)), (w.drive_id, name, a, b)
+
+
+@pytest.mark.parametrize("frame", [False, True])
+def test_the_reader_casts_each_chunk_as_it_cast_each_drive(tmp_path, monkeypatch, frame):
+    tracks, periods = mixed(frame)
+    folder = write(tmp_path / "in", tracks, periods)
+    at_once = []
+    real = parquet._drives_at_once
+    monkeypatch.setattr(parquet, "_drives_at_once", lambda *args: at_once.append(real(*args)) or at_once[-1])
+    got = list(parquet.read_parquet(folder))
+    assert at_once and all(drives is not None for drives in at_once)  # the chunk path was taken
+    monkeypatch.undo()
+    drive_by_drive(monkeypatch)
+    want = list(parquet.read_parquet(folder))
+    same_drives(got, want)
+    assert {d.drive_id for d in want if d.reject_reason} == {"two_egos", "bad_period", "listed_only"}
+    assert len(want) == len(periods)
+
+
+def test_a_value_that_does_not_convert_still_yields_the_drives_before_it(tmp_path, monkeypatch):
+    tracks = pl.concat([scene("first"), scene("second")]).with_columns(
+        frame=pl.when(nth(150)).then(float("nan")).otherwise(pl.col("t_s") * 10))  # frame as floats
+    folder = write(tmp_path / "in", tracks, {"first": 0.1, "second": 0.1})
+
+    def until_error() -> tuple[list, str]:
+        read = []
+        with pytest.raises(InputError) as exc:
+            for drive in parquet.read_parquet(folder):
+                read.append(drive)  # noqa: PERF402 (the drives before the error count)
+        return read, str(exc.value)
+
+    got, says = until_error()
+    drive_by_drive(monkeypatch)
+    want, said = until_error()
+    same_drives(got, want)
+    assert [d.drive_id for d in got] == ["first"] and says == said
+    assert says.startswith(f"{folder / 'tracks.parquet'}: column 'frame' is Float64, which does not convert to Int64")
+
+
+@pytest.mark.parametrize("frame", [False, True])
+def test_the_batch_checks_give_what_each_drive_checked_alone_gives(tmp_path, frame):
+    tracks, periods = mixed(frame)
+    drives = list(parquet.read_parquet(write(tmp_path / "in", tracks, periods)))
+    cleaned = ingestion.clean_batch(drives)
+    for i, drive in enumerate(drives):
+        if drive.tracks.is_empty():
+            assert i not in cleaned
+            continue
+        try:
+            alone = ingestion.clean_tracks(drive)
+        except InputError:
+            assert i not in cleaned  # a rejection and its message are clean_tracks' own
+            continue
+        if i in cleaned:
+            (got, dropped, reasons), (want, want_dropped, want_reasons) = cleaned[i], alone
+            assert got.schema == want.schema and got.equals(want, null_equal=True), drive.drive_id
+            assert (dropped, reasons) == (want_dropped, want_reasons), drive.drive_id
+    # the drives that pass every rule and have no repeated frame or t_s are the batch's own, dropped rows and all
+    # (with frames given, a sample period of 0.05 s no longer contradicts the timestamps' frames)
+    assert sorted(drives[i].drive_id for i in cleaned) == sorted([
+        "good", "shuffled", "bad_rows", "broken_values", "every_row_bad", "no_period", "cyclist", "alternating_a",
+        "alternating_b", *(["contradicted_period"] if frame else [])])
+    reasons = {drives[i].drive_id: r for i, (_, _, r) in cleaned.items()}
+    assert reasons["bad_rows"] == [
+        "2 row(s) with a NULL, NaN or infinite t_s, x_m or y_m dropped",
+        "1 row(s) with |x_m| or |y_m| above 1e+08 m or |t_s| above 1e+10 s dropped",
+        "2 row(s) with a NULL actor_id, kind or frame dropped"]
+    assert reasons["broken_values"] == [
+        "1 speed_mps value(s) beyond +-1000 set to NULL and derived from positions",
+        "2 accel_mps2 value(s) beyond +-1000 set to NULL and derived from positions"]
+
+
+@pytest.mark.parametrize("frame", [False, True])
+def test_a_mixed_batch_ingests_as_drive_by_drive_and_as_each_drive_alone(tmp_path, monkeypatch, frame):
+    tracks, periods = mixed(frame)
+    folder = write(tmp_path / "in", tracks, periods)
+    ingest("parquet", [folder], tmp_path / "batch.duckdb")
+    with monkeypatch.context() as m:
+        drive_by_drive(m)
+        ingest("parquet", [folder], tmp_path / "drive_by_drive.duckdb")
+    with monkeypatch.context() as m:
+        m.setattr(ingestion, "BATCH_ROWS", 1)  # every drive a batch of its own
+        ingest("parquet", [folder], tmp_path / "alone.duckdb")
+
+    def stored(name: str) -> dict[str, list[tuple]]:
+        with duckdb.connect(str(tmp_path / f"{name}.duckdb"), read_only=True) as con:
+            return {t: con.sql(f"select * from {t} order by all").fetchall()
+                    for t in ("drive_inputs", "tracks", "track_lanes")}
+
+    batch = stored("batch")
+    assert batch == stored("drive_by_drive")
+    assert batch == stored("alone")
+    where = folder / "tracks.parquet"
+    outcome = {r[0]: (r[8], r[9]) for r in batch["drive_inputs"]}
+    assert outcome["good"] == ("ingested", None)
+    assert outcome["unknown_kind"] == ("rejected", (
+        f"{where}: column 'kind' has unknown value(s) 'car'.\n\nHint: kinds are the spec's evaluation_object_kind "
+        "values: object, person, cyclist, vehicle, truck, trailer, fod, animal, sign, bus, motorcycle, "
+        "emergency_vehicle, stationary_vehicle."))
+    assert outcome["millimetres"] == ("rejected", (
+        f"{where}: drive 'millimetres': actors move at a median 10,000 m/s between samples. Fix: write x_m and y_m "
+        "in metres (millimetres divided by 1000) and t_s in seconds."))
+    assert outcome["every_row_bad"] == ("rejected", (
+        f"{where}: drive 'every_row_bad' has no usable track rows (102 row(s) with a NULL, NaN or infinite t_s, x_m "
+        "or y_m dropped)."))
+    assert outcome["duplicates"][0] == "ingested" and outcome["duplicates"][1].startswith("3 exact duplicate row(s)")
+    assert sorted(d for d, (status, _) in outcome.items() if status == "rejected") == sorted([
+        "unknown_kind", "degrees", "milliseconds", "millimetres", "every_row_bad", "two_egos", "bad_period",
+        "long_period", "listed_only", *([] if frame else ["contradicted_period"])])
+    if frame:
+        assert outcome["same_time"] == ("ingested", ("2 row(s) giving one actor different values at the same t_s "
+                                                     "dropped (e.g. actor_id 'ego' at t_s = 2.9)"))
+
+
+def test_a_median_speed_at_the_limit_is_decided_by_the_drive_alone():
+    """A drive whose median speed is within a hair of the limit is left to clean_tracks, whose median decides."""
+    t = np.arange(11) * 0.1
+    rows = actor("a", t, t * ingestion.MAX_MEDIAN_SPEED_MPS, Y1, drive_id="edge").with_columns(
+        frame=pl.int_range(11, dtype=pl.Int64), heading_rad=pl.lit(None, pl.Float64),
+        speed_mps=pl.lit(None, pl.Float64), accel_mps2=pl.lit(None, pl.Float64)
+    ).select(ingestion.schema.TRACKS.column_names)
+    drive = ingestion.DriveData("edge", "parquet", "edge.parquet", 0.1, rows)
+    assert ingestion.clean_batch([drive]) == {}
