@@ -51,7 +51,8 @@ def _each(drives: list) -> dict:
     return out
 
 
-def _same_drives(a: list, b: list) -> None:
+def same_drives(a: list, b: list) -> None:
+    """The two paths gave the same drives: every field equal, frames by value (NaN equals NaN)."""
     assert [d.drive_id for d in a] == [d.drive_id for d in b]
     for x, y in zip(a, b, strict=True):
         for name in x.__dataclass_fields__:
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
     for _ in range(args.repeat):
         each, w1, c1 = _timed(lambda: _read(args.parquet, False))
         drives, w2, c2 = _timed(lambda: _read(args.parquet, True))
-        _same_drives(drives, each)
+        same_drives(drives, each)
         rows = sum(d.tracks.height for d in drives)
         print(f"read {len(drives)} drives, {rows:,} rows: per drive {c1:.2f} CPU s ({w1:.2f} s wall), "
               f"per chunk {c2:.2f} CPU s ({w2:.2f} s wall)")

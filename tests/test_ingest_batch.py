@@ -5,7 +5,6 @@ drives, rows, counts and messages, for a batch mixing good drives with every kin
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import duckdb
@@ -13,6 +12,7 @@ import numpy as np
 import polars as pl
 import pytest
 
+from benchmarks.ingest_checks import same_drives
 from logiq_sql import ingest, ingestion
 from logiq_sql.errors import InputError
 from logiq_sql.readers import parquet
@@ -105,17 +105,6 @@ def drive_by_drive(monkeypatch: pytest.MonkeyPatch) -> None:
     """The code before the batch checks: every drive cast and checked on its own."""
     monkeypatch.setattr(parquet, "_drives_at_once", lambda *args: None)
     monkeypatch.setattr(ingestion, "clean_batch", lambda drives: {})
-
-
-def same_drives(got: list, want: list) -> None:
-    assert [d.drive_id for d in got] == [d.drive_id for d in want]
-    for g, w in zip(got, want, strict=True):
-        for name in w.__dataclass_fields__:
-            a, b = getattr(g, name), getattr(w, name)
-            if isinstance(b, pl.DataFrame):
-                assert a.schema == b.schema and a.equals(b, null_equal=True), (w.drive_id, name)
-            else:
-                assert a == b or (isinstance(b, float) and math.isnan(a) and math.isnan(b)), (w.drive_id, name, a, b)
 
 
 @pytest.mark.parametrize("frame", [False, True])
