@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors, actor_lanes
+-- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -86,7 +86,8 @@ behind as (
             or (r.same_lane and fl.lane_id = el.lane_id),
             false
         ) as actor_on_ego_road,
-        -- the lane of the road the actor is on, when the ego has left it and its successor too (so is past a fork)
+        -- when the ego entered the lane of its road the actor is on, if it has left that lane and its successor
+        -- since (it is past a fork)
         case when road.lane_id is not null and r.actor_lane_id <> el.lane_id and next_lane.lane_id is null
             then road.first_s end as left_lane_first_s
     from relations as r
