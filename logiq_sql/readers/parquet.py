@@ -190,15 +190,11 @@ def _drives_at_once(rows: pl.DataFrame, drives_meta: dict[str, dict], maps: dict
         periods.update({drive_id: _sample_period({}, own[(drive_id,)]) for drive_id in derive})
     if refused:
         rows = rows.filter(~pl.col("drive_id").is_in(list(refused)))
-    if "frame" not in rows.columns:
-        if rows.schema.get("t_s") != pl.Float64:
-            return None  # t_s / dt in t_s's own type: drive by drive, as _drive divides
-        period = (pl.col("drive_id").replace_strict(periods, return_dtype=pl.Float64) if periods
-                  else pl.lit(None, pl.Float64))  # no rows left
-        # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
-        rows = rows.with_columns(frame=(pl.col("t_s") / period).round().cast(pl.Int64, strict=False))
-    if "is_ego" not in rows.columns:
-        rows = rows.with_columns(is_ego=pl.lit(False))
+    if "frame" not in rows.columns and rows.schema.get("t_s") != pl.Float64:
+        return None  # t_s / dt in t_s's own type: drive by drive, as _drive divides
+    period = (pl.col("drive_id").replace_strict(periods, return_dtype=pl.Float64) if periods
+              else pl.lit(None, pl.Float64))  # no rows left
+    rows = _completed(rows, period)
     try:
         tracks = check_table(rows, schema.TRACKS, tracks_file, REQUIRED)
     except InputError:
@@ -236,14 +232,20 @@ def _drive(drive_id: str, rows: pl.DataFrame, meta: dict, maps: dict[str, _Parts
     if bad is not None:
         return bad
     dt = _sample_period(meta, rows)
-    if "frame" not in rows.columns:
-        # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
-        rows = rows.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64, strict=False))
-    if "is_ego" not in rows.columns:
-        rows = rows.with_columns(is_ego=pl.lit(False))
+    rows = _completed(rows, dt)
     tracks = check_table(rows, schema.TRACKS, tracks_file, REQUIRED)
     egos = tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())["actor_id"].unique().sort().to_list()
     return _read_drive(drive_id, tracks, rows.height, dt, meta, maps, egos, tracks_file, source_format)
+
+
+def _completed(rows: pl.DataFrame, period: float | pl.Expr) -> pl.DataFrame:
+    """The optional columns a file may leave out: frame from t_s and the sample period, is_ego false."""
+    if "frame" not in rows.columns:
+        # a time too large for a frame number becomes NULL here and is dropped, counted, at ingest
+        rows = rows.with_columns(frame=(pl.col("t_s") / period).round().cast(pl.Int64, strict=False))
+    if "is_ego" not in rows.columns:
+        rows = rows.with_columns(is_ego=pl.lit(False))
+    return rows
 
 
 def _bad_period(drive_id: str, meta: dict, rows_read: int, tracks_file: str | Path, drives_file: str | Path,
