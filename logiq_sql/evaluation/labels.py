@@ -145,9 +145,21 @@ def _is_vehicle() -> pl.Expr:
     return pl.col("kind").is_in(VEHICLE_KINDS)
 
 
-def _islands(frames: pl.DataFrame, keys: list[str]) -> pl.DataFrame:
-    """Maximal runs of consecutive frames per key: start/end frame and t_s."""
-    return (frames.with_columns(island=pl.col("frame") - pl.col("frame").rank("ordinal").over(keys).cast(pl.Int64))
+def _island(keys: list[str], max_gap_frames: int) -> pl.Expr:
+    """An id per run of frames of each key: a run goes on across at most ``max_gap_frames`` missing frames, the
+    matcher's gap rule (docs/semantics.md, "gaps and jitter"), which a label follows like the matcher does."""
+    step = pl.col("frame").diff().over(keys, order_by="frame")
+    return (step.is_null() | (step - 1 > max_gap_frames)).cast(pl.Int64).cum_sum().over(keys, order_by="frame")
+
+
+def _gap_frames(p: dict, dt: float) -> int:
+    """max_gap in frames, floor(max_gap / dt), as docs/semantics.md counts it."""
+    return math.floor(p["max_gap"] / dt + EPS)
+
+
+def _islands(frames: pl.DataFrame, keys: list[str], max_gap_frames: int) -> pl.DataFrame:
+    """Maximal runs of frames per key, bridging gaps of at most ``max_gap_frames``: start/end frame and t_s."""
+    return (frames.with_columns(island=_island(keys, max_gap_frames))
             .group_by(*keys, "island")
             .agg(start_frame=pl.col("frame").min(), end_frame=pl.col("frame").max(),
                  start_s=pl.col("t_s").min(), end_s=pl.col("t_s").max()))
@@ -162,7 +174,7 @@ def _headway_ok(gap: str, speed: str, p: dict) -> pl.Expr:
 
 # ------------------------------------------------------------------------------------------- follower_vehicle
 
-def follower_vehicle(rows: pl.DataFrame, p: dict) -> pl.DataFrame:
+def follower_vehicle(rows: pl.DataFrame, p: dict, dt: float) -> pl.DataFrame:
     """The actor's FCD leader is the ego at a headway in range, in the same lane; islands cut at the ego's lane
     changes. Same lane as the spec means it ("drives behind the Ego in the same lane"): the actor's FCD lane is one
     the ego was on, in its current lane run, at most same_road_limit ago. SUMO's leader search alone follows the
@@ -182,7 +194,7 @@ def follower_vehicle(rows: pl.DataFrame, p: dict) -> pl.DataFrame:
                  .join_asof(ego_was_on, on="t_s", by=["ego_id", "lane_id", "ego_run"], strategy="backward",
                             check_sortedness=False)  # both sorted by t_s above, so within every group too
                  .filter(pl.col("t_s") - pl.col("ego_on_lane_s") <= p["same_road_limit"] + EPS))
-    islands = _islands(same_lane, ["ego_id", "actor_id", "ego_run"])
+    islands = _islands(same_lane, ["ego_id", "actor_id", "ego_run"], _gap_frames(p, dt))
     return islands.filter(pl.col("end_s") - pl.col("start_s") >= p["min_scenario_duration"] - EPS).select(
         "ego_id", "actor_id", "start_s", "end_s",
         source=pl.lit("fcd: actor's leaderID = ego, leaderGap / actor speed in range, actor on a lane the ego was "
@@ -349,7 +361,7 @@ def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.Da
     ).select(ego_id="vehicle_id", actor_id="vehicle_id_c", frame="frame", t_s="t_s")
     piece_frames = math.floor(p["max_phase_duration"] / dt + EPS) + 1
     keys = ["ego_id", "actor_id"]
-    pieces = (close.with_columns(island=pl.col("frame") - pl.col("frame").rank("ordinal").over(keys).cast(pl.Int64))
+    pieces = (close.with_columns(island=_island(keys, _gap_frames(p, dt)))
               .with_columns(piece=(pl.col("frame") - pl.col("frame").min().over(*keys, "island")) // piece_frames))
     return pieces.group_by(*keys, "island", "piece").agg(start_s=pl.col("t_s").min(), end_s=pl.col("t_s").max()
                                                          ).select(
@@ -546,7 +558,7 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     # the ego waits until the actor is in the junction: the actor's centre is past its junction start within
     # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor)
     keys = ["ego_id", "actor_id", "link", "link_f"]
-    runs = _islands(waiting, keys)
+    runs = _islands(waiting, keys, _gap_frames(p, dt))
     entered = (runs.select(*keys, "island", "start_frame", "end_frame")
                .join(paths.select(actor_id="vehicle_id", frame="frame", centre_m_f="centre_m"), on="actor_id")
                .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
@@ -576,7 +588,7 @@ def label_sumo(run_dir: str | Path, scenarios: list[str] | None = None,
     found = []
     for name, p in values.items():
         if name == "follower_vehicle":
-            labels = follower_vehicle(rows, p)
+            labels = follower_vehicle(rows, p, dt)
         elif name == "sut_cut_out":
             labels = sut_cut_out(rows, changes, p, dt)
         elif name == "cyclist_close_to_moving_sut":
