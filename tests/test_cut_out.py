@@ -47,6 +47,21 @@ def test_cut_out_keeps_the_last_and_first_three_seconds_around_the_lane_change(t
     assert dict(hits.select("bucket", "hits").iter_rows()) == {"left": 0, "right": 1}
 
 
+def test_a_frame_dropped_at_the_lane_change_does_not_lose_the_cut_out(tmp_path):
+    """The ego's sample at the crossing (5.1 s) is missing: the transition is seen between 5.0 s (old lane) and
+    5.2 s (new lane) and dated at 5.2 s; the missing frame counts to phase 1, which ends at 5.1 s (frame * dt_s)
+    and keeps its last 3 s from there. Before, the lane change was lost (a transition needed the frame before
+    it), and phase 1 was measured as 3.1 s (kept from 2.0 s, the nearest recorded frame, to 5.1 s)."""
+    t = times(10.0)
+    ego, npc = drive(t, ramp(t, 4.5, Y1, Y2))
+    db = make_db(tmp_path, [ego.filter(pl.col("t_s") != CHANGE_S), npc])
+    result = match(db, scenarios=[CUT_OUT])
+    assert intervals(result.matches, CUT_OUT) == [("ego", "npc", 2.1, 8.2)]
+    phases = result.match_phases.sort("phase_index")
+    assert [(round(a, 3), round(b, 3)) for a, b in phases.select("start_s", "end_s").iter_rows()] == [
+        (2.1, CHANGE_S), (5.2, 8.2)]
+
+
 def test_the_actor_changing_lanes_is_not_an_ego_cut_out(tmp_path):
     t = times(10.0)
     db = make_db(tmp_path, drive(t, Y1, actor_y=ramp(t, 4.5, Y1, Y2)))

@@ -103,6 +103,7 @@ ego_frames as (
     -- the ego's frames over each chain; a one-phase chain is cut into pieces of at most its maximum
     select
         s.*,
+        d.dt_s,
         e.frame,
         e.t_s,
         case
@@ -119,15 +120,18 @@ ego_frames as (
 ),
 
 transitions as (
-    -- the time phase 1 ends and the last phase begins (the ego's nearest frames)
+    -- the time phase 1 ends and the last phase begins, taken as `timed` takes them below: the frame's t_s, or
+    -- frame * dt_s when the ego's track misses that frame (a bridged gap), so that the kept maximum and the
+    -- measured duration agree
     select
         drive_id,
         ego_id,
         actor_id,
         chain_start_frame,
         piece,
-        max(case when frame <= p1_end_frame then t_s end) as p1_end_s,
-        min(case when frame >= last_start_frame then t_s end) as last_start_s
+        coalesce(max(case when frame = p1_end_frame then t_s end), max(p1_end_frame * dt_s)) as p1_end_s,
+        coalesce(max(case when frame = last_start_frame then t_s end), max(last_start_frame * dt_s))
+            as last_start_s
     from ego_frames
     group by drive_id, ego_id, actor_id, chain_start_frame, piece
 ),

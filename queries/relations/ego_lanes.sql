@@ -6,7 +6,9 @@
 --
 -- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
 --   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
---      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition;
+--      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition. Lanes are
+--      compared between consecutive samples of the ego, so frames missing in between (a dropped frame) do not
+--      hide a transition: it is dated at the first frame seen in the new lane;
 --   2. the change is confirmed if, after the transition, the ego is in a lane and more than
 --      lane_calculation_tolerance_length away from the old lane and from the lanes that continue it (its
 --      successors and predecessors): the keep_lane tolerance. It is dated at the transition, the frame at
@@ -74,8 +76,8 @@ runs as (
 runs_with_previous as (
     select
         *,
-        lag(lane_id) over (partition by drive_id, ego_id order by run_start_frame) as previous_lane_id,
-        lag(run_end_frame) over (partition by drive_id, ego_id order by run_start_frame) as previous_end_frame
+        -- the previous run ends at the ego's previous sample, however many frames are missing in between
+        lag(lane_id) over (partition by drive_id, ego_id order by run_start_frame) as previous_lane_id
     from runs
 ),
 
@@ -94,7 +96,6 @@ transitions as (
         on r.drive_id = d.drive_id
     inner join lane_neighbours as n
         on d.map_id = n.map_id and r.previous_lane_id = n.lane_id and r.lane_id = n.near_lane_id
-    where r.previous_end_frame = r.run_start_frame - 1
 ),
 
 last_transition as (
