@@ -15,6 +15,8 @@ furthest (``queries/match/chain.sql``, the same chains the matcher completes):
                      the test it applies (the parameter values are in ``parameters``)
     bridged          the runs of the pair's phases in which an interruption of at most max_gap (a missing
                      frame, or a condition flickering false) was bridged (``phase_runs.bridged_frames``)
+    chained          when the phases chained but no match fits their durations: each phase of the earliest
+                     complete chain, its span and the limits it must meet
 """
 
 from __future__ import annotations
@@ -58,6 +60,28 @@ left join best as b
 left join scored as s
     on p.drive_id = s.drive_id and p.ego_id = s.ego_id and p.actor_id = s.actor_id and s.rank = 1
 """
+# per pair: the phases of its earliest complete chain, before the duration limits trim or reject it (frames *
+# dt_s: a phase boundary may fall on a missing frame)
+_CHAINED = """
+with complete as (
+    select drive_id, ego_id, actor_id, min(path_key) as path_key
+    from chain where phase_index = $phase_count group by drive_id, ego_id, actor_id
+),
+steps as (
+    select c.drive_id, c.ego_id, c.actor_id, c.phase_index, c.phase_start_frame,
+        coalesce(lead(c.phase_start_frame) over (
+            partition by c.drive_id, c.ego_id, c.actor_id order by c.phase_index) - 1, c.run_end_frame)
+            as phase_end_frame
+    from chain as c
+    inner join complete as k
+        on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
+        and starts_with(k.path_key, c.path_key)
+)
+select s.drive_id, s.ego_id, s.actor_id, s.phase_index, s.phase_start_frame * d.dt_s as start_s,
+    s.phase_end_frame * d.dt_s as end_s
+from steps as s inner join drive_inputs as d on s.drive_id = d.drive_id
+order by s.drive_id, s.ego_id, s.actor_id, s.phase_index
+"""
 _BRIDGED = """
 select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames
 from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
@@ -76,7 +100,10 @@ class Explanation:
             if r["matched"]:
                 lines.append(head + " -- matched")
             elif r["failed_phase"] is None:
-                lines.append(head + " chained, but no chain fits the phases' duration limits (min/max_duration)")
+                lines.append(head + " chained, but no chain fits the phases' duration limits (min/max_duration); "
+                             "the earliest chain, before the first phase is trimmed to its last max and the last "
+                             "to its first max:")
+                lines += [f"    {c}" for c in r["chained"]]
             elif r["at_s"] is None:
                 lines.append(f"{head}; {r['failed_phase']} could not begin at frame {r['at_frame']}: no row of that "
                              "phase's query there (the pair is not a candidate at that frame, e.g. too far apart)")
@@ -128,6 +155,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
         score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
         progress = con.sql(_PROGRESS.format(score=score)).pl()
         bridged = con.sql(_BRIDGED).pl()
+        chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
         # the row of each phase's table at the frame it was needed (several rows per frame: the first)
         needed = []
         for k in range(len(s.phases)):
@@ -159,9 +187,22 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
                   "start_frame", "end_frame", pl.col("start_s").round(2), pl.col("end_s").round(2),
                   "bridged_frames").alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("bridged"))
+    def limit(name: str | None, default: str) -> str:
+        return s.params[name].text if name and s.params[name].text else default
+
+    limits = [f"needs {limit(p.min_duration, '0s')} to {limit(p.max_duration, 'any length')}" for p in s.phases]
+    chained_text = chained.select(
+        "ego_id", "actor_id",
+        pl.format("{} {} s to {} s ({} s; {})",
+                  pl.col("phase_index").replace_strict(list(range(1, len(names) + 1)), names, default="?"),
+                  pl.col("start_s").round(2), pl.col("end_s").round(2), (pl.col("end_s") - pl.col("start_s")).round(2),
+                  pl.col("phase_index").replace_strict(list(range(1, len(names) + 1)), limits, default="?")
+                  ).alias("text"),
+    ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
     n = len(s.phases)
     open_ = (pl.col("phases_reached") < n) & ~pl.col("matched")
-    pairs = pairs.join(bridged_text, on=["ego_id", "actor_id"], how="left").select(
+    pairs = pairs.join(bridged_text, on=["ego_id", "actor_id"], how="left").join(
+        chained_text, on=["ego_id", "actor_id"], how="left").select(
         "ego_id", "actor_id", pl.lit(n, pl.Int64).alias("phase_count"), pl.col("phases_reached").cast(pl.Int64),
         "matched",
         pl.when(open_).then(pl.col("phases_reached").replace_strict(
@@ -171,6 +212,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
         pl.when(open_).then(pl.col("failed").fill_null(pl.lit([], pl.List(pl.String))))
         .otherwise(pl.lit([], pl.List(pl.String))).alias("failed"),
         pl.col("bridged").fill_null(pl.lit([], pl.List(pl.String))),
+        pl.col("chained").fill_null(pl.lit([], pl.List(pl.String))),
     )
     return Explanation(pairs.sort(["matched", "phases_reached", "ego_id", "actor_id"],
                                   descending=[True, True, False, False]),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
+from logiq_sql.explain import explain
 from logiq_sql.match import match
 from tests.helpers import LANE_W, Y1, Y2, actor, intervals, lane, make_db, times
 
@@ -86,6 +87,17 @@ def test_phase_minimum_durations(tmp_path):
     assert intervals(match(short_side, scenarios=[CUT_OUT]).matches, CUT_OUT) == []
     later = make_db(tmp_path / "c", drive(t, ramp(t, 4.5, Y1, Y2) - ramp(t, 5.8, 0.0, LANE_W)))
     assert intervals(match(later, scenarios=[CUT_OUT]).matches, CUT_OUT) == [("ego", "npc", 2.0, 6.2)]
+
+
+def test_explain_shows_the_phase_that_misses_its_duration_limit(tmp_path):
+    # as in test_phase_minimum_durations: back from 5.5 s, the ego is on the line at 6.0 s (a tie keeps the
+    # actor's lane), so ego_side_of_npc holds from 5.1 to 5.9 s only
+    t = times(10.0)
+    db = make_db(tmp_path, drive(t, ramp(t, 4.5, Y1, Y2) - ramp(t, 5.5, 0.0, LANE_W)))
+    text = explain(db, CUT_OUT, "d1", "ego", actor="npc").text()
+    assert "2 of 2 phases chained, but no chain fits the phases' duration limits" in text
+    assert "ego_on_same_lane 0.0 s to 5.0 s (5.0 s; needs 1sec to 3sec)" in text
+    assert "ego_side_of_npc 5.1 s to 5.9 s (0.8 s; needs 1sec to 3sec)" in text
 
 
 def split_road(x_m: float) -> tuple[list[dict], list[dict]]:
