@@ -83,3 +83,23 @@ def test_the_kept_relations_are_relations_of_of_the_declared_kinds(runs):
     alone = _read(runs["alone"], "select count(*) as n from relations")["n"][0]
     assert set(kinds["actor_kind"]) > {"cyclist"}  # cars and people too
     assert alone == kinds.filter(pl.col("actor_kind") == "cyclist")["n"].sum() < kinds["n"].sum()
+
+
+def test_relation_kinds_must_be_kinds(tmp_path):
+    from logiq_sql.errors import ScenarioError
+    from logiq_sql.paths import data_dir
+    from logiq_sql.scenario import load_scenario
+
+    text = (data_dir("scenarios") / f"{CYCLIST}.toml").read_text()
+    assert 'relation_kinds = ["cyclist"]' in text
+    for bad, says in (('["bicycle"]', "'bicycle' is not an evaluation_object_kind"), ("[]", "non-empty list")):
+        (tmp_path / f"{CYCLIST}.toml").write_text(text.replace('relation_kinds = ["cyclist"]', f"relation_kinds = {bad}"))
+        with pytest.raises(ScenarioError, match=says):
+            load_scenario(CYCLIST, tmp_path)
+    # not inherited: a scenario that extends the cyclist's declares its own (unset: every kind)
+    (tmp_path / f"{CYCLIST}.toml").write_text(text)
+    (tmp_path / "my_cyclist.toml").write_text(text.replace(f'name = "{CYCLIST}"', 'name = "my_cyclist"')
+                                              .replace('extends = ["logiq_base_object_scenario"]',
+                                                       f'extends = ["{CYCLIST}"]')
+                                              .replace('relation_kinds = ["cyclist"]\n', ""))
+    assert load_scenario("my_cyclist", tmp_path).relation_kinds is None
