@@ -346,7 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep", action="store_true",
                    help="also store the intermediate tables relations, passages and encroachments for analysts "
                         "(ego_lanes is always stored); without it they are recomputed on demand (explain, "
-                        "relations_of)")
+                        "relations_of). The kept relations holds only the actor kinds some scenario of the run "
+                        "can use (every kind unless all of them declare relation_kinds, e.g. the cyclist "
+                        "scenario alone: cyclists only); relations_of(drive_id, ego_id) gives the full relation")
     p.add_argument("--force", action="store_true",
                    help="rerun drives already matched with the same scenario version, parameters, ego and range "
                         "(skipped by default)")

@@ -28,8 +28,8 @@ PHASE_COLUMNS = ("drive_id", "ego_id", "actor_id", "frame", "t_s", "segment", "h
 # values every run binds besides the scenario's parameters (logiq_sql.plan.run_values)
 RUN_VALUES = (
     "max_gap_s", "phase_count", "ego_mode", "ego_every", "ego_actor_ids_csv", "ego_kinds_csv", "relation_range_m",
-    "object_relation_range_m", "lane_calculation_tolerance_length_m", "min_closing_speed_mps", "scenario",
-    "scenario_version", "params_hash",
+    "object_relation_range_m", "relation_kinds_csv", "lane_calculation_tolerance_length_m", "min_closing_speed_mps",
+    "scenario", "scenario_version", "params_hash",
     *(f"phase_{i}_{what}" for i in range(1, 5) for what in ("name", "min_duration_s", "max_duration_s")),
 )
 

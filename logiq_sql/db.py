@@ -497,6 +497,12 @@ def docs_markdown() -> str:
             "Kept from the last match run of each drive, for analysts: see docs/semantics.md for every column "
             "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`). In the file, their columns carry "
             "the descriptions of those files' headers as comments (as do `passages` and `encroachments`).", "",
+            ("`relations` (kept with `match --keep`) holds the actors of the kinds some scenario of that run can use: "
+             "the union of the scenarios' `relation_kinds` (docs/scenarios.md), every kind when one of them leaves "
+             "it unset, as every built-in scenario but `cyclist_close_to_moving_sut` (`relation_kinds = "
+             "[\"cyclist\"]`) does. A run of the cyclist scenario alone keeps its cyclists only; a run with any "
+             "other keeps the full relation. `relations_of(drive_id, ego_id)`, a table macro `match` creates in the "
+             "file, gives the full relation of any ego on demand (`logiq_sql/relations_of.py`)."), "",
             "## `passages` and `encroachments`", "",
             "Kept from the last run of a junction scenario on each drive: every stay of an ego or related actor in a "
             "junction with its entry and exit, legs and turn (`queries/junctions/passages.sql`), and the encroachment "

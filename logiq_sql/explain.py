@@ -149,7 +149,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
             raise ScenarioError(f"explain --drive {drive}: no such drive in {db_path}.")
         con.register("run_drives", pl.DataFrame({"drive_id": [drive]}))
         values = run_values(s, parse_ego(ego, ego_kinds), units.parse(relation_range, "length", "--relation-range"))
-        prepare_relations(con, [s], values)
+        prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
         for table, rel in phase_steps(s):
             materialise(con, table, rel, values)
         score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)

@@ -28,9 +28,11 @@ from logiq_sql.batching import batches
 from logiq_sql.engines import check_engine, open_engine
 from logiq_sql.errors import ScenarioError, did_you_mean
 from logiq_sql.plan import (
+    ALL_KINDS_CSV,
     DEFAULT_RELATION_RANGE,
     ego_key,
     parse_ego,
+    relation_kinds_csv,
     relation_settings,
     resolve_scenarios,
     run_values,
@@ -123,7 +125,10 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         ego_kinds: the kinds that can be under test for ``auto``, ``all`` and ``every:N``, comma-separated
             (default vehicle, truck, bus, motorcycle, emergency_vehicle).
         keep: also store the intermediate tables relations, passages and encroachments for analysts (ego_lanes
-            is always stored); without it, any such rows an earlier run kept for these drives are removed.
+            is always stored); without it, any such rows an earlier run kept for these drives are removed. The
+            kept relations holds the actors of the kinds some scenario of the run can use (``relation_kinds``;
+            every kind unless each scenario declares it): a subset of the full relation, which the
+            ``relations_of(drive_id, ego_id)`` table macro gives.
         results: with ``engine="spark"``: Spark writes the outputs itself as Parquet partitioned by scenario and
             drive under this folder (logiq_sql/spark_out.py), and ``db_path`` gets views over them; nothing of
             the results passes through the driver.
@@ -171,8 +176,10 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
                 con.execute(f"drop table if exists temp.main.{table}")
             runner.select_drives()
             prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
+            kinds = relation_kinds_csv(group)
             say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
-                f"(lane tolerance {tolerance:g} m)")
+                f"(lane tolerance {tolerance:g} m"
+                + ("" if kinds == ALL_KINDS_CSV else f"; actors of kinds {kinds.strip(',')} only") + ")")
             if writer is not None:
                 found = writer.write_batch(group, {s.name: run_values(s, ego_values, range_m) for s in group}, batch)
                 for name, n in found.items():

@@ -20,6 +20,7 @@ DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
 DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_length
 DEFAULT_MIN_CLOSING_SPEED_MPS = 0.1  # logiq_base_vehicle_scenario's min_closing_speed, for scenarios without it
+ALL_KINDS_CSV = "," + ",".join(OBJECT_KINDS) + ","  # $relation_kinds_csv when every kind is related (relations_of)
 # the kinds that can be under test (--ego auto/all/every:N); --ego-kinds narrows them
 EGO_KINDS = ("vehicle", "truck", "bus", "motorcycle", "emergency_vehicle")
 EGO_KIND_ALIASES = {"car": "vehicle"}
@@ -119,6 +120,17 @@ def relation_settings(s: Scenario) -> tuple[float, float]:
             _value_or(s, "min_closing_speed", DEFAULT_MIN_CLOSING_SPEED_MPS))
 
 
+def relation_kinds_csv(group: list[Scenario]) -> str:
+    """The actor kinds the relation steps of ``group`` (scenarios that share one relations table) compute, as
+    ``$relation_kinds_csv``: the union of the scenarios' ``relation_kinds``, every kind when one of them leaves it
+    unset. ``relations`` then holds only pairs some scenario of the group can use; ``relations_of`` gives every
+    kind."""
+    if any(s.relation_kinds is None for s in group):
+        return ALL_KINDS_CSV
+    kinds = {k for s in group for k in s.relation_kinds or ()}
+    return "," + ",".join(k for k in OBJECT_KINDS if k in kinds) + ","
+
+
 def phase_values(s: Scenario) -> dict[str, object]:
     """Per phase slot 1..MAX_PHASES: ``phase_<i>_name``, ``phase_<i>_min_duration_s`` (0 when none) and
     ``phase_<i>_max_duration_s`` (NULL when none): the values the phase's duration parameters have."""
@@ -139,6 +151,7 @@ def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> 
     return {
         "max_gap_s": 0.0, **s.bindings(), **phase_values(s), **ego, "relation_range_m": relation_range_m,
         "object_relation_range_m": min(relation_range_m, OBJECT_RELATION_RANGE_M),
+        "relation_kinds_csv": relation_kinds_csv([s]),
         "lane_calculation_tolerance_length_m": tolerance_m, "min_closing_speed_mps": closing_mps,
         "scenario": s.name, "scenario_version": s.version, "params_hash": s.params_hash(),
     }

@@ -19,7 +19,7 @@ import re
 
 import duckdb
 
-from logiq_sql.plan import DEFAULT_MIN_CLOSING_SPEED_MPS, RELATION_STEPS, ego_kinds_csv
+from logiq_sql.plan import ALL_KINDS_CSV, DEFAULT_MIN_CLOSING_SPEED_MPS, RELATION_STEPS, ego_kinds_csv
 from logiq_sql.sql import query_text
 
 STEPS = (("egos", "relations/egos.sql"), *RELATION_STEPS)  # the matcher's relation steps, in its order
@@ -33,6 +33,7 @@ PARAMETERS = {
     "lane_calculation_tolerance_length_m": "lane_tolerance_m",
     "relation_range_m": "relation_range_m",
     "object_relation_range_m": "least(relation_range_m, 50.0)",
+    "relation_kinds_csv": "'" + ALL_KINDS_CSV + "'",  # every kind: the full relation, whatever a run kept
 }
 
 

@@ -23,7 +23,7 @@ import shapely
 
 from logiq_sql.db import connect
 from logiq_sql.errors import InputError
-from logiq_sql.plan import DEFAULT_MIN_CLOSING_SPEED_MPS
+from logiq_sql.plan import ALL_KINDS_CSV, DEFAULT_MIN_CLOSING_SPEED_MPS
 from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
 from logiq_sql.sql import bind, query_text
 
@@ -75,7 +75,7 @@ STEPS = (("replay_windows", "replay/windows.sql"), ("pair_tracks", "replay/pair_
          ("pair_relations", "relations/relations.sql"), ("replay_frames", "replay/match_frames.sql"),
          ("replay_others", "replay/others.sql"))
 PARAMS = {"margin_s": MARGIN_S, "others_range_m": OTHERS_RANGE_M, "relation_range_m": ANY_RANGE_M,
-          "object_relation_range_m": ANY_RANGE_M,
+          "object_relation_range_m": ANY_RANGE_M, "relation_kinds_csv": ALL_KINDS_CSV,
           # TTC and MTTC as the vehicle scenarios' default min_closing_speed makes them (NULL below it)
           "min_closing_speed_mps": DEFAULT_MIN_CLOSING_SPEED_MPS}
 

@@ -12,7 +12,15 @@ from logiq_sql.contract import sample_columns
 from logiq_sql.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 from logiq_sql.encroachment import ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA, encroachments
 from logiq_sql.engines import Engine, as_engine
-from logiq_sql.plan import IDENTIFY_QUERY, JUNCTION_STEPS, RELATION_STEPS, SAMPLES_QUERY, phase_steps
+from logiq_sql.plan import (
+    ALL_KINDS_CSV,
+    IDENTIFY_QUERY,
+    JUNCTION_STEPS,
+    RELATION_STEPS,
+    SAMPLES_QUERY,
+    phase_steps,
+    relation_kinds_csv,
+)
 from logiq_sql.scenario import Scenario
 from logiq_sql.timing import stage
 
@@ -31,10 +39,13 @@ class ScenarioOutput:
 
 
 def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scenario],
-                      values: dict[str, object]) -> None:
+                      values: dict[str, object], every_kind: bool = False) -> None:
     """The steps every scenario of ``group`` (one set of relation settings) shares: egos, relations and, when one
-    of them needs it, the junction geometry and the encroachment areas."""
+    of them needs it, the junction geometry and the encroachment areas. ``relations`` holds the actors of the
+    kinds some scenario of ``group`` can use (``plan.relation_kinds_csv``), or of every kind with ``every_kind``
+    (``explain``, which shows the pairs a scenario cannot match too)."""
     engine = as_engine(con)
+    values = {**values, "relation_kinds_csv": ALL_KINDS_CSV if every_kind else relation_kinds_csv(group)}
     with stage("relations"):
         engine.materialise("egos", "relations/egos.sql", values)
         for table, rel in RELATION_STEPS:

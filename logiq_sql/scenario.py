@@ -3,7 +3,8 @@
 A scenario file may ``extends`` base scenarios. What it inherits:
 - ``params``: every parameter of every base; the child may redeclare one to change its default.
 - ``kpi_queries``, ``sample_queries``, ``kpis`` and ``coverage``: appended, bases first, each name once.
-- ``phases`` (and the optional ``frames`` step they read): a concrete scenario declares its own.
+- ``phases`` (and the optional ``frames`` step they read): a concrete scenario declares its own, and so
+  ``relation_kinds`` (the actor kinds its queries can use in ``relations``; unset: every kind) is its own too.
 
 Every key of every table is checked here, at load (a misspelt key is an error with a did-you-mean); what the
 SQL files use and return is checked against the scenario by ``logiq_sql.contract`` before any data is read.
@@ -33,7 +34,7 @@ MAX_PHASES = 4  # match/phase_runs.sql reads phase_1 .. phase_4
 _PARAM_KEYS = {"type", "default", "description"}
 _TOP_KEYS = {
     "name", "description", "spec", "version", "abstract", "extends", "actors", "params", "phases",
-    "frames", "kpi_queries", "sample_queries", "kpis", "coverage", "junctions",
+    "frames", "kpi_queries", "sample_queries", "kpis", "coverage", "junctions", "relation_kinds",
 }
 _PHASE_KEYS = {"name", "description", "query", "min_duration", "max_duration", "conditions"}
 _CONDITION_KEYS = {"name", "value", "test"}
@@ -126,6 +127,9 @@ class Scenario:
     phases: tuple[Phase, ...]
     frames_query: str | None  # an optional step (table scenario_frames) that the phase queries read
     junctions: bool  # the scenario needs the junction steps (queries/junctions/)
+    # the actor kinds whose rows of `relations` the scenario's queries can use (None: every kind); a run computes
+    # the relation only for the kinds some scenario of it can use (logiq_sql.plan.relation_kinds_csv)
+    relation_kinds: tuple[str, ...] | None
     kpi_queries: tuple[str, ...]
     sample_queries: tuple[str, ...]  # one row per (match_id, sample): values at each sampling event
     kpis: tuple[Kpi, ...]
@@ -266,6 +270,7 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
     kpis: dict[str, Kpi] = {}
     coverage: dict[str, CoverageItem] = {}
     lineage: list[str] = [name]
+    relation_kinds = None  # not inherited: it describes what the scenario's own phase queries read
     for base in bases:
         params.update(base.params)
         kpi_queries += [q for q in base.kpi_queries if q not in kpi_queries]
@@ -296,6 +301,8 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         _check_keys(c, _COVERAGE_KEYS, where)
         coverage[_required(c, "name", where)] = _coverage_item(c, where)
 
+    if "relation_kinds" in raw:
+        relation_kinds = _relation_kinds(raw["relation_kinds"], f"{path} relation_kinds")
     phases = tuple(_phase(p, params, path, f"{path} [[phases]] {_entry_name(p)}") for p in raw.get("phases", []))
     abstract = bool(raw.get("abstract", False))
     frames = raw.get("frames")
@@ -315,10 +322,18 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         name=name, path=path, description=raw.get("description", ""), spec=raw.get("spec", ""),
         version=int(raw.get("version", 1)), abstract=abstract, lineage=tuple(lineage),
         actors=dict(raw.get("actors", {})), params=params, phases=phases, frames_query=frames,
-        junctions=bool(raw.get("junctions", False)),
+        junctions=bool(raw.get("junctions", False)), relation_kinds=relation_kinds,
         kpi_queries=tuple(kpi_queries), sample_queries=tuple(sample_queries), kpis=tuple(kpis.values()),
         coverage=tuple(coverage.values()),
     )
+
+
+def _relation_kinds(value: object, where: str) -> tuple[str, ...]:
+    """``relation_kinds = ["cyclist"]``: a non-empty list of evaluation_object_kinds."""
+    if not isinstance(value, list) or not value or not all(isinstance(k, str) for k in value):
+        raise ScenarioError(f"{where}: must be a non-empty list of kinds, e.g. [\"cyclist\"] (leave it out for "
+                            "every kind).")
+    return _parse_value("kinds", value, where)  # type: ignore[return-value]
 
 
 def _entry_name(entry: object) -> str:

@@ -3,6 +3,10 @@
 -- reads: egos, relations, tracks
 -- params: none
 --
+-- The actors are those of relations, so of the kinds the run's scenarios can use (relations.sql): every kind in a
+-- run of a scenario that leaves relation_kinds unset, as the left turn does; a junction scenario that declared
+-- relation_kinds would get passages for those kinds only.
+--
 -- s_m is the distance the box centre has travelled since the actor's first row: a position along the actor's
 -- own path, so offsets from a junction's start and end are differences of s_m (the junction scenarios need
 -- no other actors). Each step is the displacement projected on the actor's heading, so position jitter (a

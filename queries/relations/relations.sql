@@ -1,11 +1,18 @@
 -- relations: relations
--- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor within relation_range of an ego
+-- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor of the run's relation kinds within
+--        relation_range of an ego
 -- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_line
--- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps
+-- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps, $relation_kinds_csv
 --
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
 -- object_relation_range apart for every other kind (people, cyclists, cones): close-object scenarios look
 -- within metres, lane-following ones up to a 5 s headway.
+--
+-- Only actors whose kind is in relation_kinds_csv (',cyclist,') are related: the kinds some scenario of the run
+-- can use (each scenario's `relation_kinds`, every kind when one leaves it unset; logiq_sql.plan.relation_kinds_csv).
+-- A run of cyclist_close_to_moving_sut alone relates cyclists only; a run with any lane-following or junction
+-- scenario relates every kind (the nearest road user ahead or behind may be of any kind), so its rows are the full
+-- relation. relations_of(drive_id, ego_id) gives every kind, whatever a run kept (docs/semantics.md).
 --
 -- Geometry in the ego frame (x forward along the ego heading, y to the ego's left), boxes from
 -- length_m/width_m around the centre:
@@ -70,6 +77,7 @@ pairs as (
                 else $object_relation_range_m * $object_relation_range_m
             end as range_sq_m2
         from tracks
+        where instr($relation_kinds_csv, ',' || kind || ',') > 0
     ) as a
         on e.drive_id = a.drive_id
         and e.frame = a.frame
