@@ -2,7 +2,7 @@
 
 Marked ``spark``: part of ``make test`` (CI installs the [spark] extra; Java 17 is on the machines). Without
 PySpark the tests are skipped with the reason, except under CI=true, where they fail. One Spark session for the
-module (local[2], no UI, 4 shuffle partitions).
+module (local[2], no UI, 4 shuffle partitions; the client JIT only: tests/conftest.py).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ REL_TOL = 1e-9  # Spark's sums and cos/sin may differ from DuckDB's in the last 
 
 
 @pytest.fixture(scope="module")
-def spark():
+def spark(client_jit):
     try:
         import pyspark  # noqa: F401
     except ImportError:

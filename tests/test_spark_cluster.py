@@ -32,7 +32,7 @@ WORKER_MEMORY = "1g"  # the executor (512m heap) must fit
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster(tmp_path_factory, client_jit):
     """spark://127.0.0.1:PORT of a running master with WORKERS registered workers, and the workers' folders."""
     try:
         import pyspark  # noqa: F401
@@ -42,6 +42,7 @@ def cluster(tmp_path_factory):
         pytest.skip("PySpark is not installed: pip install 'logiq-sql[spark]' (needs Java 17).")
     from benchmarks.cluster import standalone
 
+    # every JVM of the cluster (master, workers, executors) and the driver with the client JIT only (conftest.py)
     with standalone(tmp_path_factory.mktemp("cluster"), WORKERS, memory=WORKER_MEMORY) as running:
         yield running
 
