@@ -648,7 +648,9 @@ def test_a_reingested_drive_without_matches_keeps_no_old_relations(tmp_path):
     db = tmp_path / "x.duckdb"
     folder = write(tmp_path / "in", scene("d1"))
     ingest("parquet", [folder], db)
-    assert match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded", keep=True).matches.is_empty()
+    # sut_cut_out relates every kind (the cyclist scenario alone would relate cyclists only: none here) and finds
+    # no cut-out: the ego keeps its lane
+    assert match(db, scenarios=["sut_cut_out"], ego="recorded", keep=True).matches.is_empty()
 
     def kept_rows() -> dict[str, int]:
         with duckdb.connect(str(db), read_only=True) as con:
