@@ -180,10 +180,12 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
             raise ScenarioError(f"explain --actor {actor}: phase 1's query ({s.phases[0].query}) has no row for this "
                                 f"actor and ego in drive {drive} (too far apart, or not within --relation-range).")
     names = [p.name for p in s.phases]
+    slots = list(range(1, len(names) + 1))  # phase_index of each phase
+    phase_name = pl.col("phase_index").replace_strict(slots, names, default="?")
     bridged_text = bridged.select(
         "ego_id", "actor_id",
         pl.format("{} frames {}-{} ({} s to {} s): {} frame(s) missing or not holding, bridged",
-                  pl.col("phase_index").replace_strict(list(range(1, len(names) + 1)), names, default="?"),
+                  phase_name,
                   "start_frame", "end_frame", pl.col("start_s").round(2), pl.col("end_s").round(2),
                   "bridged_frames").alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("bridged"))
@@ -194,9 +196,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     chained_text = chained.select(
         "ego_id", "actor_id",
         pl.format("{} {} s to {} s ({} s; {})",
-                  pl.col("phase_index").replace_strict(list(range(1, len(names) + 1)), names, default="?"),
+                  phase_name,
                   pl.col("start_s").round(2), pl.col("end_s").round(2), (pl.col("end_s") - pl.col("start_s")).round(2),
-                  pl.col("phase_index").replace_strict(list(range(1, len(names) + 1)), limits, default="?")
+                  pl.col("phase_index").replace_strict(slots, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
     n = len(s.phases)
