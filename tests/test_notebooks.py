@@ -3,6 +3,7 @@ a temporary folder; the committed notebooks have no outputs)."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 from pathlib import Path
 
@@ -14,12 +15,35 @@ ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = ROOT / "notebooks"
 
 
-def execute(name: str, tmp_path: Path, monkeypatch) -> nbformat.NotebookNode:
-    # the kernel imports logiq_sql from this checkout, whatever is installed in the environment
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
-    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
-    NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}}).execute()
-    nbformat.write(nb, tmp_path / name)
+RUN = ["quickstart.ipynb", "exploration.ipynb", "frames.ipynb"]
+
+
+@pytest.fixture(scope="module")
+def executed() -> dict[str, nbformat.NotebookNode | BaseException]:
+    """Every notebook, executed at the same time: each in its own kernel (process), all driven by one event loop
+    (nbclient's async_execute). They share nothing (each writes to its own temporary folder), and on 2 cores the
+    kernels' start-up and single-threaded Python overlap; each test below checks its own notebook's outputs, and
+    a notebook that fails to run fails its own test with the error."""
+    async def run(name: str) -> nbformat.NotebookNode:
+        nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+        await NotebookClient(nb, timeout=300, kernel_name="python3",
+                             resources={"metadata": {"path": str(NOTEBOOKS)}}).async_execute()
+        return nb
+
+    async def run_all() -> list:
+        return await asyncio.gather(*(run(name) for name in RUN), return_exceptions=True)
+
+    with pytest.MonkeyPatch.context() as patch:
+        # the kernels import logiq_sql from this checkout, whatever is installed in the environment
+        patch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+        return dict(zip(RUN, asyncio.run(run_all())))
+
+
+def execute(name: str, tmp_path: Path, executed) -> nbformat.NotebookNode:
+    nb = executed[name]
+    if isinstance(nb, BaseException):
+        raise nb
+    nbformat.write(nb, tmp_path / name)  # the executed copy, as a reader would open it
     return nb
 
 
@@ -40,14 +64,14 @@ def replays(nb: nbformat.NotebookNode) -> list[str]:
     return [h for h in outputs(nb, "text/html") if 'class="anim-state"' in h]
 
 
-@pytest.mark.parametrize("name", ["quickstart.ipynb", "exploration.ipynb", "frames.ipynb"])
+@pytest.mark.parametrize("name", RUN)
 def test_committed_notebooks_have_no_outputs(name):
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
     assert [c for c in nb.cells if c.cell_type == "code" and (c.outputs or c.execution_count)] == []
 
 
-def test_quickstart(tmp_path, monkeypatch):
-    nb = execute("quickstart.ipynb", tmp_path, monkeypatch)
+def test_quickstart(tmp_path, executed):
+    nb = execute("quickstart.ipynb", tmp_path, executed)
     printed = "".join(outputs(nb, "stream"))
     assert "3 drive(s) ingested, 0 rejected" in printed and "4 drive(s) ingested, 0 rejected" in printed
     assert "unprotected_left_turn_with_yield_and_traffic_light: 17 matches in 1 drive(s)" in printed
@@ -57,8 +81,8 @@ def test_quickstart(tmp_path, monkeypatch):
     assert any("matches_per_scenario" in t for t in outputs(nb, "text/html"))
 
 
-def test_exploration(tmp_path, monkeypatch):
-    nb = execute("exploration.ipynb", tmp_path, monkeypatch)
+def test_exploration(tmp_path, executed):
+    nb = execute("exploration.ipynb", tmp_path, executed)
     images = outputs(nb, "image/png")
     # timeline, a bird's-eye view, a coverage grid per scenario (found in scenarios/), KPI grid
     from logiq_sql.scenario import list_scenarios
@@ -72,8 +96,8 @@ def test_exploration(tmp_path, monkeypatch):
     assert "pet_between_sut_and_npc_s" in tables and "empty_buckets" in tables
 
 
-def test_frames(tmp_path, monkeypatch):
-    nb = execute("frames.ipynb", tmp_path, monkeypatch)
+def test_frames(tmp_path, executed):
+    nb = execute("frames.ipynb", tmp_path, executed)
     printed = "".join(outputs(nb, "stream"))
     assert "53,089 track rows, 1,307 lanes, 4 drives" in printed
     assert "follower_vehicle: 4 matches in 3 drive(s)" in printed and "cyclist_close_to_moving_sut: 1 matches" in printed
