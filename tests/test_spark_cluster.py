@@ -18,6 +18,7 @@ themselves), its results written by the executors under ``--out`` (logiq_sql/spa
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, match_both, read_output, twin_files
@@ -32,7 +33,18 @@ WORKER_MEMORY = "1g"  # the executor (512m heap) must fit
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory, client_jit):
+def wheel(tmp_path_factory):
+    """The project's wheel (benchmarks.cluster.project_zip), being built in a thread: pip spends most of its time
+    fetching the build backend into its isolated environment (18 s of wall time for 4 s of CPU, measured), so it
+    overlaps the cluster's JVM starts instead of following them. The same wheel, built the same way."""
+    from benchmarks.cluster import project_zip
+
+    with ThreadPoolExecutor(1) as pool:
+        yield pool.submit(project_zip, tmp_path_factory.mktemp("dist"))
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory, client_jit, wheel):
     """spark://127.0.0.1:PORT of a running master with WORKERS registered workers, and the workers' folders."""
     try:
         import pyspark  # noqa: F401
@@ -48,16 +60,15 @@ def cluster(tmp_path_factory, client_jit):
 
 
 @pytest.fixture(scope="module")
-def session(cluster, tmp_path_factory):
+def session(cluster, wheel):
     """A Spark session on the cluster, configured as a user's script or notebook would configure it, with the
     project's wheel shipped to the executors."""
-    from benchmarks.cluster import project_zip
     from benchmarks.cluster import session as cluster_session
 
     url, _ = cluster
     patch = pytest.MonkeyPatch()  # cluster_session sets PYSPARK_PYTHON for the executors: undone afterwards
     patch.setenv("PYSPARK_PYTHON", os.environ.get("PYSPARK_PYTHON", ""))
-    spark = cluster_session(url, project_zip(tmp_path_factory.mktemp("dist")), WORKERS)
+    spark = cluster_session(url, wheel.result(), WORKERS)
     yield spark
     spark.stop()
     patch.undo()
