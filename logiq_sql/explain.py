@@ -14,7 +14,9 @@ furthest (``queries/match/chain.sql``, the same chains the matcher completes):
     failed           the conditions of failed_phase that are false there, each with its measured value and
                      the test it applies (the parameter values are in ``parameters``)
     bridged          the runs of the pair's phases in which an interruption of at most max_gap (a missing
-                     frame, or a condition flickering false) was bridged (``phase_runs.bridged_frames``)
+                     frame, or a condition flickering false) was bridged (``phase_runs.bridged_frames``), and
+                     those dropped as jitter because they held at fewer than half of their frames
+                     (``phase_runs.jitter``)
     chained          when the phases chained but no match fits their durations: each phase of the earliest
                      complete chain, its span and the limits it must meet
 """
@@ -83,7 +85,7 @@ from steps as s inner join drive_inputs as d on s.drive_id = d.drive_id
 order by s.drive_id, s.ego_id, s.actor_id, s.phase_index
 """
 _BRIDGED = """
-select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames
+select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames, jitter
 from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
 """
 
@@ -110,7 +112,8 @@ class Explanation:
             else:
                 lines.append(f"{head}; {r['failed_phase']} could not begin at t = {r['at_s']:.2f} s "
                              f"(frame {r['at_frame']}):")
-                lines += [f"    {f}" for f in r["failed"]]
+                lines += [f"    {f}" for f in r["failed"]] or [
+                    "    all its conditions hold at this frame, but only in a run dropped as jitter (below)"]
             lines += [f"    bridged: {b}" for b in r["bridged"]]
         lines.append("parameters: " + ", ".join(f"{k} = {v}" for k, v in sorted(self.parameters.items())))
         return "\n".join(lines)
@@ -184,10 +187,12 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     phase_name = pl.col("phase_index").replace_strict(slots, names, default="?")
     bridged_text = bridged.select(
         "ego_id", "actor_id",
-        pl.format("{} frames {}-{} ({} s to {} s): {} frame(s) missing or not holding, bridged",
+        pl.format("{} frames {}-{} ({} s to {} s): {} frame(s) missing or not holding, {}",
                   phase_name,
                   "start_frame", "end_frame", pl.col("start_s").round(2), pl.col("end_s").round(2),
-                  "bridged_frames").alias("text"),
+                  "bridged_frames",
+                  pl.when("jitter").then(pl.lit("more than it held: dropped as jitter")).otherwise(pl.lit("bridged"))
+                  ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("bridged"))
     def limit(name: str | None, default: str) -> str:
         return s.params[name].text if name and s.params[name].text else default

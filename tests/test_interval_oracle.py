@@ -1,7 +1,8 @@
 """The phase SQL against a brute-force Python oracle on random per-frame conditions.
 
 The follower sits either at a headway inside [0 s, 5 s] or far outside it, frame by frame, and some of its
-frames are missing; the oracle walks the frames one by one, bridging interruptions of at most max_gap.
+frames are missing; the oracle walks the frames one by one, bridging interruptions of at most max_gap, and drops
+a bridged run that held at fewer than half of its frames.
 """
 
 from __future__ import annotations
@@ -10,9 +11,11 @@ import math
 
 import numpy as np
 import polars as pl
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from logiq_sql.explain import explain
 from logiq_sql.match import match
 from tests.helpers import Y1, intervals, make_db
 
@@ -32,6 +35,8 @@ def oracle_islands(frames_ok: list[bool], min_s: float | None, max_s: float | No
             runs.append([i, i])
     out = []
     for start, end in runs:
+        if 2 * sum(frames_ok[start:end + 1]) < end - start + 1:  # held at fewer than half its frames: jitter
+            continue
         if (end - start) * DT < max_gap_s - 1e-6:  # shorter than max_gap: jitter, not an episode
             continue
         if max_s is not None:  # consecutive pieces spanning at most max_s
@@ -94,3 +99,24 @@ def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s, max_ga
                                       ("cyclist", 4.0, 12.0, True), {"max_phase_duration": f"{max_s}s"},
                                       None, max_s, max_gap_s)
     assert got == expected
+
+
+@pytest.mark.parametrize(("held_every", "matched"), [((0,), False), ((0, 1), True)])
+def test_a_run_held_at_fewer_than_half_of_its_frames_is_jitter(tmp_path, held_every, matched):
+    """A cyclist whose distance the noise carries under 5 m at one frame in three (the gaps of two frames are
+    bridged by max_gap = 0.5 s) gives no match, and explain says the run was dropped as jitter; at two frames in
+    three the run holds at most of its frames and is one match (docs/semantics.md, "Decision (gaps and jitter)")."""
+    ok = [i % 3 in held_every for i in range(40)]
+    db = make_db(tmp_path, drive(ok, [True] * 40, "cyclist", 4.0, 7.5, True))  # box gap 2.2 m, or 5.7 m
+    got = intervals(match(db, scenarios=["cyclist_close_to_moving_sut"], ego="recorded",
+                          overrides={"max_phase_duration": "10s"}).matches, "cyclist_close_to_moving_sut")
+    text = explain(db, "cyclist_close_to_moving_sut", "d1", "ego", actor="a").text()
+    if matched:
+        assert [(a, b) for _, _, a, b in got] == [(0.0, 3.9)]
+        assert "bridged" in text and "jitter" not in text
+    else:
+        assert got == []
+        assert "could not begin at t = 0.00 s (frame 0):\n    all its conditions hold at this frame, but only in " \
+               "a run dropped as jitter (below)" in text
+        assert "cyclist_close_to_moving_sut frames 0-39 (0.0 s to 3.9 s): 26 frame(s) missing or not holding, " \
+               "more than it held: dropped as jitter" in text

@@ -148,8 +148,9 @@ def _chain(islands: list[tuple[int, int, int]], phase_count: int, max_gap_frames
     from logiq_sql.sql import materialise
     con = duckdb.connect()
     con.register("phase_runs", pl.DataFrame(
-        [(k, "d", "e", "a", s, e, max_gap_frames) for k, s, e in islands], orient="row",
-        schema=["phase_index", "drive_id", "ego_id", "actor_id", "start_frame", "end_frame", "max_gap_frames"]))
+        [(k, "d", "e", "a", s, e, max_gap_frames, False) for k, s, e in islands], orient="row",
+        schema=["phase_index", "drive_id", "ego_id", "actor_id", "start_frame", "end_frame", "max_gap_frames",
+                "jitter"]))
     con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": range(200),
                                          "t_s": [f / 10 for f in range(200)]}))
     con.register("drive_inputs", pl.DataFrame({"drive_id": ["d"], "dt_s": [0.1]}))

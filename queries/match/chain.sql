@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, ego_id, actor_id, chain_start_frame, path_key): a chain of phases from a
 --        phase-1 run, as far as it gets (phase_index = the phase it has reached); `explain` reads the
 --        partial ones, match/sequential.sql the complete ones
--- reads: phase_runs
+-- reads: phase_runs (the runs not flagged as jitter)
 -- params: $phase_count
 --
 -- The one rule by which sequential phases meet (docs/semantics.md, "Phases and matches"). From phase k, begun
@@ -27,7 +27,7 @@ with recursive chain as (
         max_gap_frames,
         lpad(cast(start_frame as varchar), 12, '0') as path_key
     from phase_runs
-    where phase_index = 1
+    where phase_index = 1 and not jitter
 
     union all
 
@@ -57,6 +57,7 @@ with recursive chain as (
         on c.drive_id = j.drive_id and c.ego_id = j.ego_id and c.actor_id = j.actor_id
         and j.phase_index = c.phase_index + 1
     where c.phase_index < $phase_count
+        and not j.jitter
         and (
             (j.start_frame > c.phase_start_frame and j.start_frame <= c.run_end_frame + 1 + c.max_gap_frames)
             or (j.start_frame <= c.phase_start_frame and j.end_frame >= c.phase_start_frame + 1)

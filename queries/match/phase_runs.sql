@@ -1,6 +1,6 @@
 -- match: phase_runs
 -- grain: one row per (phase_index, drive_id, ego_id, actor_id, segment, run): a stretch of frames in which a
---        phase holds, gaps of at most max_gap bridged
+--        phase holds, gaps of at most max_gap bridged, flagged as jitter when it held at fewer than half its frames
 -- reads: phase_1 .. phase_4 (the scenario's phase queries, the phase contract of docs/scenarios.md; a scenario
 --        with fewer phases reads match/no_phase.sql for the rest), drive_inputs
 -- params: $max_gap_s
@@ -13,6 +13,10 @@
 --   max_gap_frames   floor(max_gap / dt_s): the longest interruption bridged, in frames
 --   bridged_frames   frames inside the run at which the phase did not hold (or that are missing): what was
 --                    bridged (`logiq-sql explain` lists them)
+--   jitter           the run held at fewer than half of its frames (2 * held < span): a condition that
+--                    measurement noise makes true now and then, not an episode, so match/chain.sql skips it
+--                    (explain lists it). Bridging, this majority and the shortest match (match/sequential.sql)
+--                    make one debouncing rule (docs/semantics.md, "Decision (gaps and jitter)").
 -- Runs never span two segments (e.g. two lane runs of the ego).
 with
 
@@ -60,6 +64,7 @@ select
     min(t_s) as start_s,
     max(t_s) as end_s,
     max(max_gap_frames) as max_gap_frames,
-    max(frame) - min(frame) + 1 - count(*) as bridged_frames
+    max(frame) - min(frame) + 1 - count(*) as bridged_frames,
+    2 * count(*) < max(frame) - min(frame) + 1 as jitter
 from numbered
 group by phase_index, drive_id, ego_id, actor_id, segment, run
