@@ -57,14 +57,18 @@ TABLES = {
 REL_TOL = 1e-9  # summation order may move the last bits of a float; a changed rule moves far more
 
 
-def build(setting: str, folder: Path) -> dict[str, pl.DataFrame]:
-    """Ingest and match one setting's drives in ``folder``; the golden tables of the result."""
+def build(setting: str, folder: Path, ingested=None) -> dict[str, pl.DataFrame]:
+    """Ingest and match one setting's drives in ``folder``; the golden tables of the result. ``ingested``: the
+    tests' session cache of ingested files (tests/conftest.py), which hands out a copy of the same ingests."""
     from logiq_sql import ingest, match
 
     sources, ego = SETTINGS[setting]
     db = folder / f"{setting}.duckdb"
-    for fmt, path in sources:
-        ingest(fmt, [path], db)
+    if ingested is not None:
+        ingested.steps(db, *((fmt, [path]) for fmt, path in sources))
+    else:
+        for fmt, path in sources:
+            ingest(fmt, [path], db)
     match(db, ego=ego)
     with duckdb.connect(str(db), read_only=True) as con:
         return {name: con.sql(sql).pl() for name, sql in TABLES.items()}

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -38,8 +39,10 @@ def build_matched_db(db: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def matched_db(tmp_path_factory) -> Path:
-    return build_matched_db(tmp_path_factory.mktemp("analysts") / "drives.duckdb")
+def matched_db(tmp_path_factory, matched_drives) -> Path:
+    db = tmp_path_factory.mktemp("analysts") / "drives.duckdb"
+    shutil.copyfile(matched_drives, db)  # build_matched_db's file, built once per session
+    return db
 
 
 def example_queries() -> list[tuple[str, str]]:

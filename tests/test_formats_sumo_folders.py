@@ -56,7 +56,7 @@ def test_roles_come_from_the_root_element():
     assert roles["network.nod.xml"] is None and roles["SOURCE.md"] is None and roles["sumo.log"] is None
 
 
-def test_a_run_with_any_file_names_ingests_like_the_original(tmp_path):
+def test_a_run_with_any_file_names_ingests_like_the_original(tmp_path, ingested):
     run = _renamed(tmp_path)
     (run / "notes.xml").write_text("<notes><note>not SUMO</note></notes>")  # other XML is ignored
     assert run_folders(tmp_path / "runs") == [run]
@@ -65,7 +65,8 @@ def test_a_run_with_any_file_names_ingests_like_the_original(tmp_path):
     assert files["tls_states"] == [run / "signals"]
     renamed_db, original_db = tmp_path / "renamed.duckdb", tmp_path / "original.duckdb"
     assert ingest("sumo", [tmp_path / "runs"], renamed_db).drives == 1
-    assert ingest("sumo", [JUNCTION], original_db).drives == 1
+    ingested(original_db, "sumo", [JUNCTION])  # the original run, ingested once per session
+    assert ingested.summary("sumo", [JUNCTION]).drives == 1
     got, want = _tables(renamed_db, "renamed"), _tables(original_db, "junction_s1")
     assert got["tracks"].height > 100_000 and got["tracks"].equals(want["tracks"])
     assert got["lanes"].height >= 40 and got["lanes"].equals(want["lanes"])

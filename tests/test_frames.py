@@ -60,10 +60,9 @@ def nuscenes(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def junction(tmp_path_factory):
-    path = tmp_path_factory.mktemp("frames") / "junction.duckdb"
-    ingest("sumo", [DATA / "sumo/junction_s1"], path)
-    return canonical_frames(path)
+def junction(tmp_path_factory, ingested):
+    return canonical_frames(ingested(tmp_path_factory.mktemp("frames") / "junction.duckdb", "sumo",
+                                     [DATA / "sumo/junction_s1"]))
 
 
 SETTINGS = {"overrides": {"max_distance_from_cyclist": "6m"},

@@ -10,8 +10,8 @@ from tests import golden
 
 
 @pytest.mark.parametrize("setting", list(golden.SETTINGS))
-def test_outputs_equal_the_golden_files(setting, tmp_path):
-    got = golden.build(setting, tmp_path)
+def test_outputs_equal_the_golden_files(setting, tmp_path, ingested):
+    got = golden.build(setting, tmp_path, ingested)
     assert got["matches"].height > 0  # the comparison below compares something
     assert golden.compare(setting, got) == []
 

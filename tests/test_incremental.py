@@ -33,11 +33,18 @@ def assert_same(a: dict[str, pl.DataFrame], b: dict[str, pl.DataFrame], skip: tu
             assert a[table].equals(b[table]), table
 
 
-@pytest.fixture
-def first_run(tmp_path) -> Path:
-    db = tmp_path / "x.duckdb"
-    ingest("commonroad", FIRST, db)
+@pytest.fixture(scope="module")
+def first_run_once(tmp_path_factory, ingested) -> Path:
+    """FIRST ingested and matched once for the module; each test gets its own copy (first_run)."""
+    db = ingested(tmp_path_factory.mktemp("first_run") / "x.duckdb", "commonroad", FIRST)
     match(db, scenarios=SCENARIOS)
+    return db
+
+
+@pytest.fixture
+def first_run(tmp_path, first_run_once) -> Path:
+    db = tmp_path / "x.duckdb"
+    shutil.copyfile(first_run_once, db)
     return db
 
 
@@ -151,13 +158,12 @@ def test_scenarios_with_different_drives_to_match_keep_every_kept_table_unique(t
     assert not relations.is_duplicated().any()
 
 
-def test_matching_in_batches_of_drives_gives_the_same_outputs(tmp_path):
+def test_matching_in_batches_of_drives_gives_the_same_outputs(tmp_path, ingested):
     """Large files are matched a few drives at a time (memory stays bounded); one drive per batch must give what
     one pass over every drive gives, and match_runs still has one row per run and scenario."""
     dbs = {}
     for name, batch_rows in (("one_pass", 10**9), ("per_drive", 1)):
-        db = dbs[name] = tmp_path / f"{name}.duckdb"
-        ingest("commonroad", [*FIRST, LATER], db)
+        db = dbs[name] = ingested(tmp_path / f"{name}.duckdb", "commonroad", [*FIRST, LATER])
         match(db, scenarios=SCENARIOS, batch_rows=batch_rows)
     one_pass, per_drive = snapshot(dbs["one_pass"]), snapshot(dbs["per_drive"])
     run_specific = ("run_id", "started_at")

@@ -51,9 +51,9 @@ def archive(drive: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def con(tmp_path_factory):
-    db = tmp_path_factory.mktemp("av2") / "av2.duckdb"
-    summary = ingest("av2", [DATA], db)
+def con(tmp_path_factory, ingested):
+    db = ingested(tmp_path_factory.mktemp("av2") / "av2.duckdb", "av2", [DATA])  # ingested once per session
+    summary = ingested.summary("av2", [DATA])
     assert (summary.drives, summary.rejected, summary.rows_rejected) == (5, 0, 0)
     with duckdb.connect(str(db), read_only=True) as c:
         yield c

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import duckdb
 
-from logiq_sql import ingest, match
+from logiq_sql import match
 
 JUNCTION = Path(__file__).parent / "data/sumo/junction_s1"
 LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
@@ -20,9 +20,8 @@ def _counts(db: Path) -> dict[str, int | None]:
                 for t in ("relations", "ego_lanes", "passages", "encroachments")}
 
 
-def test_intermediate_tables_are_stored_only_with_keep(tmp_path):
-    db = tmp_path / "x.duckdb"
-    ingest("sumo", [JUNCTION], db)
+def test_intermediate_tables_are_stored_only_with_keep(tmp_path, ingested):
+    db = ingested(tmp_path / "x.duckdb", "sumo", [JUNCTION])
     match(db, scenarios=[LEFT_TURN], ego="every:5")
     plain = _counts(db)
     assert plain["ego_lanes"] > 0
@@ -41,10 +40,9 @@ def test_intermediate_tables_are_stored_only_with_keep(tmp_path):
     assert _counts(db) == {"relations": 0, "ego_lanes": plain["ego_lanes"], "passages": 0, "encroachments": 0}
 
 
-def test_the_cli_passes_keep(tmp_path, capsys):
+def test_the_cli_passes_keep(tmp_path, capsys, ingested):
     from logiq_sql.cli import main
 
-    db = tmp_path / "x.duckdb"
-    ingest("sumo", [JUNCTION], db)
+    db = ingested(tmp_path / "x.duckdb", "sumo", [JUNCTION])
     assert main(["match", "--db", str(db), "--scenario", LEFT_TURN, "--ego", "every:5", "--keep", "--quiet"]) == 0
     assert _counts(db)["relations"] > 0

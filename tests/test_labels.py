@@ -420,10 +420,9 @@ def test_conflict_zones_are_sumo_foes():
 
 
 @needs_fixtures
-def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
+def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys, ingested):
     from logiq_sql.cli import build_parser
     from logiq_sql.evaluation.evaluate import evaluate
-    from logiq_sql.ingestion import ingest
     from logiq_sql.match import match
 
     parser = build_parser()
@@ -433,8 +432,7 @@ def test_cli_label_then_evaluate_end_to_end(tmp_path, capsys):
     labels = pl.read_parquet(out)
     assert f"{labels.height} label(s) of 1 run(s)" in capsys.readouterr().out
     assert labels.schema == pl.Schema(LABEL_SCHEMA)
-    db = tmp_path / "j.duckdb"
-    ingest("sumo", [JUNCTION], db)
+    db = ingested(tmp_path / "j.duckdb", "sumo", [JUNCTION])
     match(db, scenarios=list(SCENARIOS), ego="every:4")  # the labelled ones (others would be all FP)
     result = evaluate(db, out)
     assert set(result.scores["scenario"]) == set(SCENARIOS)

@@ -38,9 +38,8 @@ def ngsim(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def av2(tmp_path_factory):
-    db = tmp_path_factory.mktemp("av2_lt") / "av2.duckdb"
-    ingest("av2", [DATA / "av2"], db)
+def av2(tmp_path_factory, ingested):
+    db = ingested(tmp_path_factory.mktemp("av2_lt") / "av2.duckdb", "av2", [DATA / "av2"])
     return db, match(db, [SCENARIO]), left_turn_frames(db, "recorded", tables=TABLES)
 
 

@@ -87,12 +87,12 @@ def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str],
 
 
 @pytest.fixture(scope="module")
-def drives(tmp_path_factory):
+def drives(tmp_path_factory, ingested):
     tmp = tmp_path_factory.mktemp("polars")
-    real, sumo = tmp / "real.duckdb", tmp / "sumo.duckdb"
-    ingest("commonroad", [DATA / "commonroad_ngsim/scenarios_2018b/USA_US101-22_1_T-1.xml.gz"], real)
-    ingest("scenarionet", [DATA / "nuscenes_mini_scenarionet/sd_nuscenes_v1.0-mini_scene-0103.pkl"], real)
-    ingest("sumo", [DATA / "sumo/junction_s1"], sumo)
+    real = ingested.steps(tmp / "real.duckdb",
+                          ("commonroad", [DATA / "commonroad_ngsim/scenarios_2018b/USA_US101-22_1_T-1.xml.gz"]),
+                          ("scenarionet", [DATA / "nuscenes_mini_scenarionet/sd_nuscenes_v1.0-mini_scene-0103.pkl"]))
+    sumo = ingested(tmp / "sumo.duckdb", "sumo", [DATA / "sumo/junction_s1"])
     return real, sumo
 
 

@@ -11,7 +11,7 @@ import duckdb
 import polars as pl
 import pytest
 
-from logiq_sql import ingest, match
+from logiq_sql import match
 from logiq_sql.plan import ALL_KINDS_CSV, relation_kinds_csv, resolve_scenarios
 
 DATA = Path(__file__).parent / "data"
@@ -21,12 +21,11 @@ SETTINGS = {"ego": "every:3", "overrides": {"max_distance_from_cyclist": "8m"}, 
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, Path]:
+def runs(tmp_path_factory, ingested) -> dict[str, Path]:
     """The bundled SUMO junction (cyclists, people and cars) matched with the cyclist and the follower together,
     and a copy matched with the cyclist alone."""
     folder = tmp_path_factory.mktemp("prune")
-    both = folder / "both.duckdb"
-    ingest("sumo", [DATA / "sumo/junction_s1"], both)
+    both = ingested(folder / "both.duckdb", "sumo", [DATA / "sumo/junction_s1"])
     alone = folder / "alone.duckdb"
     shutil.copy(both, alone)
     match(both, scenarios=SCENARIOS, **SETTINGS)

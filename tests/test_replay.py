@@ -4,6 +4,8 @@ headless Chromium is in test_analysts.py, beside the report test."""
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 from matplotlib.animation import FuncAnimation
@@ -12,15 +14,16 @@ from PIL import Image
 from logiq_sql import replay
 from logiq_sql.cli import main
 from logiq_sql.db import connect
-from tests.test_analysts import build_matched_db
 
 SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut",
              "unprotected_left_turn_with_yield_and_traffic_light")
 
 
 @pytest.fixture(scope="module")
-def db(tmp_path_factory):
-    return build_matched_db(tmp_path_factory.mktemp("replay") / "drives.duckdb")
+def db(tmp_path_factory, matched_drives):
+    db = tmp_path_factory.mktemp("replay") / "drives.duckdb"
+    shutil.copyfile(matched_drives, db)  # tests.test_analysts.build_matched_db's file, built once per session
+    return db
 
 
 @pytest.fixture(scope="module")
