@@ -13,6 +13,7 @@ furthest (``queries/match/chain.sql``, the same chains the matcher completes):
                      phase 1 never held, the frame at which most of phase 1's conditions held
     failed           the conditions of failed_phase that are false there, each with its measured value and
                      the test it applies (the parameter values are in ``parameters``)
+    in_jitter        failed_phase holds at that frame, but only within a run dropped as jitter (below)
     bridged          the runs of the pair's phases in which an interruption of at most max_gap (a missing
                      frame, or a condition flickering false) was bridged (``phase_runs.bridged_frames``), and
                      those dropped as jitter because they held at fewer than half of their frames
@@ -92,7 +93,7 @@ from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, ph
 
 @dataclass
 class Explanation:
-    pairs: pl.DataFrame  # one row per (ego, actor): phases_reached, matched, failed_phase, at_s, failed, bridged
+    pairs: pl.DataFrame  # one row per (ego, actor): phases_reached, matched, failed_phase, at_s, failed, in_jitter, bridged, chained
     parameters: dict[str, str]  # the scenario's parameter values, as written
 
     def text(self) -> str:
@@ -113,7 +114,9 @@ class Explanation:
                 lines.append(f"{head}; {r['failed_phase']} could not begin at t = {r['at_s']:.2f} s "
                              f"(frame {r['at_frame']}):")
                 lines += [f"    {f}" for f in r["failed"]] or [
-                    "    all its conditions hold at this frame, but only in a run dropped as jitter (below)"]
+                    "    all its conditions hold at this frame, but only in a run dropped as jitter (below)"
+                    if r["in_jitter"] else
+                    "    all its conditions hold at this frame, but the run it holds in does not continue the chain"]
             lines += [f"    bridged: {b}" for b in r["bridged"]]
         lines.append("parameters: " + ", ".join(f"{k} = {v}" for k, v in sorted(self.parameters.items())))
         return "\n".join(lines)
@@ -206,11 +209,19 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
                   pl.col("phase_index").replace_strict(slots, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
+    # the pairs whose needed phase holds at the frame shown only within a run dropped as jitter
+    keys = ["ego_id", "actor_id", "phases_reached"]
+    pairs = pairs.with_columns(pl.col("phases_reached").cast(pl.Int64))
+    in_jitter = pairs.select(*keys, "shown_frame").join(
+        bridged.filter("jitter").select("ego_id", "actor_id", "start_frame", "end_frame",
+                                        phases_reached=pl.col("phase_index").cast(pl.Int64) - 1),
+        on=keys).filter(pl.col("shown_frame").is_between("start_frame", "end_frame")).select(keys).unique()
+    pairs = pairs.join(in_jitter.with_columns(in_jitter=pl.lit(True)), on=keys, how="left")
     n = len(s.phases)
     open_ = (pl.col("phases_reached") < n) & ~pl.col("matched")
     pairs = pairs.join(bridged_text, on=["ego_id", "actor_id"], how="left").join(
         chained_text, on=["ego_id", "actor_id"], how="left").select(
-        "ego_id", "actor_id", pl.lit(n, pl.Int64).alias("phase_count"), pl.col("phases_reached").cast(pl.Int64),
+        "ego_id", "actor_id", pl.lit(n, pl.Int64).alias("phase_count"), "phases_reached",
         "matched",
         pl.when(open_).then(pl.col("phases_reached").replace_strict(
             list(range(n)), names, default=None)).alias("failed_phase"),
@@ -218,6 +229,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
         pl.when(open_).then(pl.col("t_s")).alias("at_s"),
         pl.when(open_).then(pl.col("failed").fill_null(pl.lit([], pl.List(pl.String))))
         .otherwise(pl.lit([], pl.List(pl.String))).alias("failed"),
+        pl.col("in_jitter").fill_null(False),
         pl.col("bridged").fill_null(pl.lit([], pl.List(pl.String))),
         pl.col("chained").fill_null(pl.lit([], pl.List(pl.String))),
     )
