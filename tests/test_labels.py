@@ -155,6 +155,19 @@ def test_cut_out_phases_and_edge_boundary(tmp_path):
     assert spans(short, "sut_cut_out") == [("E", "A", 1.9, 7.0)]
 
 
+def test_cut_out_on_a_junction_lane_behind_an_actor_already_past_it(tmp_path):
+    # E crosses junction j on its internal lane :j_0 behind A, which took another internal lane (:k_0) onto edge f
+    # first; E changes to :j_1 at 5.0 s and comes out on f_1, beside A on f_0. A never drove E's edge :j, so
+    # "beside" is read on A's edge: E's own lane there (f_1) against A's (f_0).
+    rows, changes = [], [("E", 5.0, ":j_0", ":j_1")]
+    for t in steps(0, 9):
+        e_lane = ":j_0" if t < 5 else (":j_1" if t < 6 else "f_1")
+        rows += [v(t, "E", 20 * t, 20, e_lane, leader="A" if t < 5 else "", gap=20 if t < 5 else -1),
+                 v(t, "A", 24.6 + 20 * t, 20, ":k_0" if t < 2 else "f_0")]
+    labels = label_sumo(write_run(tmp_path / "run", rows, changes), ["sut_cut_out"])
+    assert spans(labels, "sut_cut_out") == [("E", "A", 1.9, 8.0)]
+
+
 def test_cyclist_pieces_and_distance_band(tmp_path):
     rows = []
     for t in steps(0, 7):

@@ -46,7 +46,7 @@ LABEL_SCHEMA = {
 EPS = 1e-9  # durations are multiples of dt: compare them to limits without float noise
 _FCD_COLUMNS = ("vehicle_id", "type_id", "x_m", "y_m", "angle_deg", "speed_mps", "lane_id", "lane_pos_m",
                 "leader_id", "leader_gap_m")
-_SEGMENT_REACH = 2  # lane segments of the actor searched for the ego's edge: an internal lane, then the next edge
+_SEGMENT_REACH = 2  # lane segments of a vehicle searched for the other one's edge: an internal lane, the next edge
 
 
 # ------------------------------------------------------------------------------------------------- parameters
@@ -218,25 +218,28 @@ def _leading_run(grid: pl.DataFrame, ok: pl.Expr) -> pl.DataFrame:
         last_s=pl.col("t_s").filter(pl.col("ok") == 1).max())
 
 
-def _actor_lane_on_ego_edge(grid: pl.DataFrame, rows: pl.DataFrame) -> pl.DataFrame:
-    """For every phase-2 step: the lane index the actor has on the ego's edge.
+def _lane_on_edge(grid: pl.DataFrame, rows: pl.DataFrame, who: str, segment: str, edge: str,
+                  name: str) -> pl.DataFrame:
+    """For every (change_id, k) of ``grid``: the lane index vehicle ``who`` drove, or will drive, on ``edge``.
 
-    Same edge: its own lane. Otherwise one of them has crossed onto the next edge (or a junction's internal lane)
-    first: take the lane the actor itself drove, or will drive, on the ego's edge, the nearest of its own lane
-    segments up to ``_SEGMENT_REACH`` before or after (so a split or merge of lanes is resolved as the actor went).
+    On the same edge that is its own lane. Otherwise one of the two has crossed onto the next edge (or a
+    junction's internal lane) first: take the nearest of the vehicle's own lane segments, up to
+    ``_SEGMENT_REACH`` before or after ``segment``, that lies on ``edge`` (so a split or merge of lanes is
+    resolved as the vehicle went).
     """
     segments = rows.select("vehicle_id", "lane_segment", "edge_id", "lane_index").unique(
         ["vehicle_id", "lane_segment"])
     offsets = pl.int_ranges(-_SEGMENT_REACH, _SEGMENT_REACH + 1)
     return (
-        grid.select("change_id", "k", "actor_id", "a_segment", "e_edge")
+        grid.filter(pl.col(segment).is_not_null() & pl.col(edge).is_not_null())
+        .select("change_id", "k", who, segment, edge)
         .with_columns(offset=offsets).explode("offset")
-        .join(segments, left_on=["actor_id", pl.col("a_segment") + pl.col("offset")],
+        .join(segments, left_on=[who, pl.col(segment) + pl.col("offset")],
               right_on=["vehicle_id", "lane_segment"])
-        .filter(pl.col("edge_id") == pl.col("e_edge"))
+        .filter(pl.col("edge_id") == pl.col(edge))
         .sort(pl.col("offset").abs(), "offset")
         .unique(["change_id", "k"], keep="first")
-        .select("change_id", "k", a_index_on_e_edge="lane_index")
+        .select("change_id", "k", pl.col("lane_index").alias(name))
     )
 
 
@@ -249,9 +252,10 @@ def sut_cut_out(rows: pl.DataFrame, changes: pl.DataFrame, p: dict, dt: float) -
     vehicle_rows = rows.filter(_is_vehicle())
     ego_at = vehicle_rows.select(ego_id="vehicle_id", frame="frame", e_leader="leader_id", e_gap="leader_gap_m",
                                  e_speed="speed_mps", e_run="lane_run", e_edge="edge_id", e_index="lane_index",
-                                 t_s="t_s")
+                                 e_segment="lane_segment", t_s="t_s")
     actor_at = rows.filter(pl.col("kind").is_in(p["kinds"])).select(
-        actor_id="vehicle_id", frame="frame", a_run="lane_run", a_segment="lane_segment")
+        actor_id="vehicle_id", frame="frame", a_run="lane_run", a_segment="lane_segment", a_edge="edge_id",
+        a_index="lane_index")
     before = (
         changes.select(ego_id="vehicle_id", fc="frame", tc="t_s", from_lane="from_lane", to_lane="to_lane")
         .with_row_index("change_id")
@@ -269,11 +273,16 @@ def sut_cut_out(rows: pl.DataFrame, changes: pl.DataFrame, p: dict, dt: float) -
     max2 = math.floor(p["max_ego_on_side_of_npc_phase_duration"] / dt + EPS)
     grid2 = (_window(before, max2, 1, 0).join(ego_at, on=["ego_id", "frame"], how="left")
              .join(actor_at, on=["actor_id", "frame"], how="left"))
-    grid2 = grid2.join(_actor_lane_on_ego_edge(grid2.filter(pl.col("a_segment").is_not_null()), rows),
-                       on=["change_id", "k"], how="left")
+    # Beside: lane indices one apart on one edge, the actor's lane on the ego's edge or, when the actor never
+    # drove it (the ego on a junction's internal lane, the actor already past it), the ego's on the actor's.
+    grid2 = (grid2.join(_lane_on_edge(grid2, rows, "actor_id", "a_segment", "e_edge", "a_index_on_e_edge"),
+                        on=["change_id", "k"], how="left")
+             .join(_lane_on_edge(grid2, rows, "ego_id", "e_segment", "a_edge", "e_index_on_a_edge"),
+                   on=["change_id", "k"], how="left"))
+    beside = pl.coalesce((pl.col("a_index_on_e_edge") - pl.col("e_index")).abs(),
+                         (pl.col("e_index_on_a_edge") - pl.col("a_index")).abs()) == 1
     phase2 = _leading_run(grid2, (pl.col("e_run") == pl.col("run_before") + 1)
-                          & (pl.col("a_run") == pl.col("a_run_before"))
-                          & ((pl.col("a_index_on_e_edge") - pl.col("e_index")).abs() == 1))
+                          & (pl.col("a_run") == pl.col("a_run_before")) & beside)
     min1, min2 = p["min_ego_on_same_lane_phase_duration"], p["min_ego_on_side_of_npc_phase_duration"]
     return (
         before.join(phase1, on="change_id").join(phase2, on="change_id", suffix="_2")
