@@ -49,11 +49,13 @@ def test_scenarios_sharing_a_phase_match_as_each_alone(tmp_path):
                 result.kpis.filter(pl.col("scenario") == name).sort("match_id"))
 
     together = match(db, scenarios=[CUT_IN, CUT_OUT], force=True)
+    batched = match(db, scenarios=[CUT_IN, CUT_OUT], force=True, batch_rows=1)  # a batch per drive
     for name in (CUT_IN, CUT_OUT):
         alone = match(db, scenarios=[name], force=True)
-        for got, expected in zip(outputs(together, name), outputs(alone, name), strict=True):
-            assert got.height > 0
-            assert got.equals(expected.select(got.columns)), name
+        for run in (together, batched):
+            for got, expected in zip(outputs(run, name), outputs(alone, name), strict=True):
+                assert got.height > 0
+                assert got.equals(expected.select(got.columns)), name
 
 
 def test_the_engine_computes_a_shared_step_once_and_forgets_it(tmp_path):
