@@ -43,7 +43,7 @@ from logiq_sql.plan import (
 from logiq_sql.plan import phase_steps as phase_steps  # noqa: F401
 from logiq_sql.plan import render as render  # noqa: F401
 from logiq_sql.plan import scenario_steps as scenario_steps  # noqa: F401
-from logiq_sql.runner import prepare_relations, run_scenario
+from logiq_sql.runner import prepare_relations, run_scenario, shared_phase_steps
 from logiq_sql.scenario import Scenario, ScenarioPath
 from logiq_sql.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
@@ -188,6 +188,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
                 runner.release_drives()
                 continue
             outputs = []
+            runner.share(shared_phase_steps(group, {s.name: run_values(s, ego_values, range_m) for s in group}))
             for s in group:
                 outputs.append(run_scenario(runner, s, run_values(s, ego_values, range_m)))
                 say(f"  {s.name}: {outputs[-1].matches.height} matches")

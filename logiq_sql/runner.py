@@ -3,6 +3,7 @@ and coverage samples, as Polars frames for ``logiq_sql.store``."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import duckdb
@@ -22,7 +23,11 @@ from logiq_sql.plan import (
     relation_kinds_csv,
 )
 from logiq_sql.scenario import Scenario
+from logiq_sql.sql import step_key, tables_read
 from logiq_sql.timing import stage
+
+# what run_scenario writes besides the phase steps' tables: a query reading one of them depends on the scenario
+SCENARIO_TABLES = ("scenario_matches", "_kpi", "match_samples", "_sample")
 
 
 @dataclass
@@ -55,6 +60,16 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
             for table, rel in JUNCTION_STEPS:
                 engine.materialise(table, rel, values)
             engine.derive("encroachments", encroachments, ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA)
+
+
+def shared_phase_steps(group: list[Scenario], values: dict[str, dict[str, object]]) -> frozenset[tuple[str, tuple]]:
+    """The phase steps that more than one scenario of ``group`` runs with the same values (by scenario name in
+    ``values``) and that read none of the tables a scenario writes, only the group's shared ones: the same rows
+    each time (phases/ego_on_same_lane.sql in sut_cut_out and in cut_in_ahead_of_ego), for ``Engine.share``."""
+    written = {table for s in group for table, _ in phase_steps(s)} | set(SCENARIO_TABLES)
+    runs = Counter(step_key(p.query, values[s.name]) for s in group for p in s.phases
+                   if not tables_read(p.query) & written)
+    return frozenset(key for key, n in runs.items() if n > 1)
 
 
 def coverage_buckets(s: Scenario) -> pl.DataFrame:

@@ -39,6 +39,12 @@ def placeholders(relative: str) -> tuple[str, ...]:
     return tuple(seen)
 
 
+@functools.cache
+def tables_read(relative: str) -> frozenset[str]:
+    """The names of the tables a query file reads (its CTEs' names included: a superset)."""
+    return frozenset(t.name for t in sqlglot.parse_one(query_text(relative), read="duckdb").find_all(exp.Table))
+
+
 def unit_constant(name: str) -> float | None:
     """``mph_per_mps`` -> how many mph one m/s is. None if ``name`` is not such a constant."""
     m = _UNIT_CONSTANT.match(name)
@@ -58,6 +64,12 @@ def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
         else:
             raise ScenarioError(f"{shown_path(relative)} uses ${name}, which no scenario parameter provides.")
     return out
+
+
+def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
+    """A step as its query file and the values it binds: two steps with one key compute the same rows from the
+    same tables."""
+    return relative, tuple(sorted(bind(relative, values).items()))
 
 
 # Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:

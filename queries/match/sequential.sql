@@ -99,6 +99,15 @@ spans as (
     group by p.drive_id, p.ego_id, p.actor_id, p.chain_start_frame
 ),
 
+ego_tracks as (
+    -- the track rows of the chains' egos: the three joins below build their hash tables on these, not on every
+    -- track row (the left joins of `timed` build on their right side: all of tracks, 1 M rows at tier S)
+    select t.drive_id, t.actor_id, t.frame, t.t_s
+    from tracks as t
+    inner join (select distinct drive_id, ego_id from spans) as s
+        on t.drive_id = s.drive_id and t.actor_id = s.ego_id
+),
+
 ego_frames as (
     -- the ego's frames over each chain; a one-phase chain is cut into pieces of at most its maximum
     select
@@ -114,7 +123,7 @@ ego_frames as (
     from spans as s
     inner join drive_inputs as d
         on s.drive_id = d.drive_id
-    inner join tracks as e
+    inner join ego_tracks as e
         on s.drive_id = e.drive_id and s.ego_id = e.actor_id
         and e.frame between s.first_frame and s.last_frame
 ),
@@ -188,9 +197,9 @@ timed as (
     from clipped as c
     inner join drive_inputs as d
         on c.drive_id = d.drive_id
-    left join tracks as ts
+    left join ego_tracks as ts
         on c.drive_id = ts.drive_id and c.ego_id = ts.actor_id and c.phase_start_frame = ts.frame
-    left join tracks as te
+    left join ego_tracks as te
         on c.drive_id = te.drive_id and c.ego_id = te.actor_id and c.phase_end_frame = te.frame
 ),
 

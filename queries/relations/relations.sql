@@ -39,12 +39,20 @@
 with
 
 ego as (
+    -- each ego row three times, once per band of x it may meet actors in: bands are relation_range + 1 m wide, so
+    -- every actor within range is in the ego's band or the next one on either side, and the pair join below is an
+    -- equi-join on (drive, frame, band) instead of on (drive, frame) alone, which paired every ego row with every
+    -- actor of its frame before the range test (0.9 instead of 1.5 CPU s for the join at tier S). The range test
+    -- is the same, so the pairs are the same; the extra metre keeps a pair at exactly the range in a neighbouring
+    -- band whatever the rounding of the divisions
     select
         t.*,
-        el.lane_id as ego_lane_id
+        el.lane_id as ego_lane_id,
+        cast(floor(t.x_m / ($relation_range_m + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
         on t.drive_id = el.drive_id and t.actor_id = el.ego_id and t.frame = el.frame
+    cross join (select -1 as d union all select 0 as d union all select 1 as d) as n
 ),
 
 pairs as (
@@ -75,12 +83,14 @@ pairs as (
                 when kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
                     then $relation_range_m * $relation_range_m
                 else $object_relation_range_m * $object_relation_range_m
-            end as range_sq_m2
+            end as range_sq_m2,
+            cast(floor(x_m / ($relation_range_m + 1.0)) as bigint) as band
         from tracks
         where instr($relation_kinds_csv, ',' || kind || ',') > 0
     ) as a
         on e.drive_id = a.drive_id
         and e.frame = a.frame
+        and e.band = a.band
         and e.actor_id <> a.actor_id
         and (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m) <= a.range_sq_m2
 ),
