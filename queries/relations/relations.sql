@@ -39,16 +39,16 @@
 with
 
 ego as (
-    -- each ego row three times, once per band of x it may meet actors in: bands are relation_range + 1 m wide, so
-    -- every actor within range is in the ego's band or the next one on either side, and the pair join below is an
-    -- equi-join on (drive, frame, band) instead of on (drive, frame) alone, which paired every ego row with every
-    -- actor of its frame before the range test (0.9 instead of 1.5 CPU s for the join at tier S). The range test
-    -- is the same, so the pairs are the same; the extra metre keeps a pair at exactly the range in a neighbouring
-    -- band whatever the rounding of the divisions
+    -- each ego row three times, once per band of x it may meet actors in: bands are as wide as the larger range
+    -- (relation_range, object_relation_range) plus 1 m, so every actor within range is in the ego's band or the
+    -- next one on either side, and the pair join below is an equi-join on (drive, frame, band) instead of on
+    -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (0.9
+    -- instead of 1.5 CPU s for the join at tier S). The range test is the same, so the pairs are the same; the
+    -- extra metre keeps a pair at exactly the range in a neighbouring band whatever the rounding of the divisions
     select
         t.*,
         el.lane_id as ego_lane_id,
-        cast(floor(t.x_m / ($relation_range_m + 1.0)) as bigint) + n.d as band
+        cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
         on t.drive_id = el.drive_id and t.actor_id = el.ego_id and t.frame = el.frame
@@ -84,7 +84,7 @@ pairs as (
                     then $relation_range_m * $relation_range_m
                 else $object_relation_range_m * $object_relation_range_m
             end as range_sq_m2,
-            cast(floor(x_m / ($relation_range_m + 1.0)) as bigint) as band
+            cast(floor(x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) as band
         from tracks
         where instr($relation_kinds_csv, ',' || kind || ',') > 0
     ) as a
