@@ -175,22 +175,23 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
             for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
                 con.execute(f"drop table if exists temp.main.{table}")
             runner.select_drives()
-            prepare_relations(runner, group, run_values(group[0], ego_values, range_m))
+            values = {s.name: run_values(s, ego_values, range_m) for s in group}
+            prepare_relations(runner, group, values[group[0].name])
             kinds = relation_kinds_csv(group)
             say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
                 f"(lane tolerance {tolerance:g} m"
                 + ("" if kinds == ALL_KINDS_CSV else f"; actors of kinds {kinds.strip(',')} only") + ")")
             if writer is not None:
-                found = writer.write_batch(group, {s.name: run_values(s, ego_values, range_m) for s in group}, batch)
+                found = writer.write_batch(group, values, batch)
                 for name, n in found.items():
                     say(f"  {name}: {n} matches")
                 runner.forget(tuple(PERSISTED))
                 runner.release_drives()
                 continue
             outputs = []
-            runner.share(shared_phase_steps(group, {s.name: run_values(s, ego_values, range_m) for s in group}))
+            runner.share(shared_phase_steps(group, values))
             for s in group:
-                outputs.append(run_scenario(runner, s, run_values(s, ego_values, range_m)))
+                outputs.append(run_scenario(runner, s, values[s.name]))
                 say(f"  {s.name}: {outputs[-1].matches.height} matches")
             runner.persist(tuple(PERSISTED))
             runner.release_drives()
