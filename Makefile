@@ -54,8 +54,10 @@ demo: venv
 	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/; report in demo/report.html"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, cast(sum(matches) as bigint) as matches from drives group by 1"
 
+# two workers (pytest-xdist), one test file each at a time: TEST_WORKERS=0 runs the suite in this process
+TEST_WORKERS ?= 2
 test: venv
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 TIER ?= S
 bench: venv

@@ -14,6 +14,18 @@ import pytest
 # workers and (through the workers' environment) executors. Only the tests' JVMs: the engine's defaults stay.
 CLIENT_JIT = "-XX:TieredStopAtLevel=1"
 
+# `make test` runs the test files on two workers (pytest-xdist, `--dist loadfile --no-loadscope-reorder`), and
+# xdist hands the files out in collection order: the longest files go first (wall times of a whole-suite run), so
+# that no worker is left alone with one of them at the end. A plain `pytest` run takes the same order.
+LONGEST_FIRST = ("test_spark_cluster.py", "test_spark.py", "test_notebooks.py", "test_sumo_evaluation.py",
+                 "test_determinism.py", "test_analysts.py", "test_golden.py", "test_interrupted.py",
+                 "test_interval_oracle.py", "test_concurrency.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
 
 @pytest.fixture(scope="module")
 def client_jit():

@@ -33,23 +33,27 @@ BOXES = st.tuples(
 )
 
 
-@settings(max_examples=40, deadline=None)
-@given(ego=BOXES, others=st.lists(BOXES, min_size=1, max_size=6))
-def test_box_distance_equals_shapely(tmp_path_factory, ego, others):
+def scene_rows(drive_id: str, ego, others) -> list[pl.DataFrame]:
+    def row(actor_id, b, is_ego):
+        return pl.DataFrame({"drive_id": drive_id, "actor_id": actor_id, "kind": "vehicle", "is_ego": is_ego,
+                             "t_s": 0.0, "x_m": b[0], "y_m": b[1], "heading_rad": b[2], "speed_mps": 0.0,
+                             "length_m": b[3], "width_m": b[4]})
+    return [row("ego", ego, True)] + [row(f"a{i}", o, False) for i, o in enumerate(others)]
+
+
+# each example is several scenes, one drive each, matched in one run: 8 x 6 scenes cost what 8 runs cost
+@settings(max_examples=8, deadline=None)
+@given(scenes=st.lists(st.tuples(BOXES, st.lists(BOXES, min_size=1, max_size=6)), min_size=1, max_size=6))
+def test_box_distance_equals_shapely(tmp_path_factory, scenes):
     """box_distance_m is the exact distance between the two rotated rectangles (0 when they overlap)."""
     tmp = tmp_path_factory.mktemp("boxes")
-    rows = [pl.DataFrame({"drive_id": "d1", "actor_id": "ego", "kind": "vehicle", "is_ego": True, "t_s": 0.0,
-                          "x_m": ego[0], "y_m": ego[1], "heading_rad": ego[2], "speed_mps": 0.0,
-                          "length_m": ego[3], "width_m": ego[4]})]
-    rows += [pl.DataFrame({"drive_id": "d1", "actor_id": f"a{i}", "kind": "vehicle", "is_ego": False, "t_s": 0.0,
-                           "x_m": o[0], "y_m": o[1], "heading_rad": o[2], "speed_mps": 0.0,
-                           "length_m": o[3], "width_m": o[4]}) for i, o in enumerate(others)]
-    db = make_db(tmp, rows)
+    db = make_db(tmp, [r for k, (ego, others) in enumerate(scenes) for r in scene_rows(f"d{k}", ego, others)])
     rel = relation_rows(db)
-    ego_box = box(*ego)
+    assert rel["ego_id"].unique().to_list() == ["ego"]
+    assert rel.height == sum(len(others) for _, others in scenes)  # every pair, within 22 m of each other
     for r in rel.iter_rows(named=True):
-        o = others[int(r["actor_id"][1:])]
-        expected = ego_box.distance(box(*o))
+        ego, others = scenes[int(r["drive_id"][1:])]
+        expected = box(*ego).distance(box(*others[int(r["actor_id"][1:])]))
         assert r["box_distance_m"] == pytest.approx(expected, abs=1e-6)
 
 

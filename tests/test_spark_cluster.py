@@ -12,8 +12,10 @@ and the session adds it as a ``.zip`` Python file (``addPyFile``; Spark puts onl
 Python path, and a pure-Python wheel is a zip). The executors' Python (``$PYSPARK_PYTHON``) is this venv's,
 which holds the dependencies (docs/engines.md: packing them for a cluster). The test checks that the executors
 imported logiq_sql from the shipped zip, and that both workers' executors ran tasks (their own logs). The SUMO
-drive goes from Parquet to Parquet: read from a dataset written by ``ingest --dataset`` (the executors read it
-themselves), its results written by the executors under ``--out`` (logiq_sql/spark_out.py)."""
+junction goes from Parquet to Parquet, as a fleet's drives would: read from a dataset written by ``ingest
+--dataset`` (the executors read it themselves), its results written by the executors under ``--out``
+(logiq_sql/spark_out.py). The scenarios' SQL on Spark, every scenario and the real drives, is test_spark.py's
+(local mode): the same statements, so the cluster runs two scenarios of the junction, not all of them again."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, match_both, read_output, twin_files
+from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, read_output
 
 from logiq_sql import ingest, match
 from logiq_sql.cli import EXIT_OK, main
@@ -82,17 +84,6 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
                 .map(lambda _: __import__("logiq_sql").__file__).collect())
     assert where and all("logiq_sql.zip" in w for w in where), where
 
-    cr = DATA / "commonroad_ngsim/scenarios_2018b"
-    nu = DATA / "nuscenes_mini_scenarionet"
-    duck, spark_db = twin_files(tmp_path, "real", [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"]),
-                                              ("scenarionet", [nu / "sd_nuscenes_v1.0-mini_scene-0103.pkl"])])
-    kwargs = dict(scenarios=["follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut"], ego="every:4",
-                  overrides={"max_distance_from_cyclist": "6m"})
-    match_both(duck, spark_db, spark_master=url, **kwargs)
-    counts = read_output(duck, "matches").group_by("scenario").len().sort("scenario").rows()
-    assert [s for s, n in counts if n > 0] == ["cyclist_close_to_moving_sut", "follower_vehicle", "sut_cut_out"]
-    assert_same_outputs(duck, spark_db)
-
     # the SUMO junction from Parquet to Parquet: a dataset (ingest --dataset) the executors read themselves, the
     # encroachment areas (shapely) per drive on the executors (SparkEngine.derive), and the results written by
     # the executors as Parquet partitioned by scenario and drive (logiq_sql/spark_out.py)
@@ -100,12 +91,14 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
     duck, folder, out = tmp_path / "sumo.duckdb", tmp_path / "sumo_dataset", tmp_path / "sumo_out"
     ingest("sumo", sumo, duck)
     ingest_dataset("sumo", sumo, folder)
-    match(duck, scenarios=[LEFT_TURN], ego="every:40", keep=True)
+    match(duck, scenarios=[LEFT_TURN, "follower_vehicle"], ego="every:40", keep=True)
     assert main(["match", "--dataset", str(folder), "--out", str(out), "--engine", "spark", "--spark-master", url,
-                 "--scenario", LEFT_TURN, "--ego", "every:40", "--keep", "--quiet"]) == EXIT_OK
+                 "--scenario", LEFT_TURN, "--scenario", "follower_vehicle", "--ego", "every:40", "--keep",
+                 "--quiet"]) == EXIT_OK
     kept = {"passages": ["drive_id", "actor_id", "passage"],
             "encroachments": ["drive_id", "ego_id", "ego_passage", "actor_id", "actor_passage"]}
-    assert read_output(duck, "matches").height > 0
+    counts = dict(read_output(duck, "matches").group_by("scenario").len().rows())
+    assert counts.keys() == {LEFT_TURN, "follower_vehicle"} and min(counts.values()) > 0, counts
     assert read_output(duck, "encroachments", kept["encroachments"]).height > 0
     assert_same_outputs(duck, out / "logiq.duckdb", {**OUTPUTS, **kept})
     written = {p.relative_to(out).parts[0] for p in out.rglob("part-*.parquet")}
