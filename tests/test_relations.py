@@ -41,8 +41,8 @@ def scene_rows(drive_id: str, ego, others) -> list[pl.DataFrame]:
     return [row("ego", ego, True)] + [row(f"a{i}", o, False) for i, o in enumerate(others)]
 
 
-# each example is several scenes, one drive each, matched in one run: 8 x 6 scenes cost what 8 runs cost
-@settings(max_examples=8, deadline=None)
+# each example is several scenes, one drive each, matched in one run: about as many scenes as 40 runs of one, in 12
+@settings(max_examples=12, deadline=None)
 @given(scenes=st.lists(st.tuples(BOXES, st.lists(BOXES, min_size=1, max_size=6)), min_size=1, max_size=6))
 def test_box_distance_equals_shapely(tmp_path_factory, scenes):
     """box_distance_m is the exact distance between the two rotated rectangles (0 when they overlap)."""
