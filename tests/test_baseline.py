@@ -16,8 +16,8 @@ from logiq_sql.match import match
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
 NGSIM = DATA / "commonroad_ngsim" / "scenarios_2018b"
-# the bundled nuScenes cyclist passes 5.2 m from the ego; max_gap 0: the per-pair baseline splits phases at every
-# missing frame, as the SQL did before gaps were bridged
+# the bundled nuScenes cyclist passes 5.2 m from the ego; max_gap 0 (baseline.SAME_MEANING): the per-pair baseline
+# splits phases at every missing frame, as the SQL did before gaps were bridged
 CYCLIST = {"max_distance_from_cyclist": "6m", "max_gap": "0s"}
 
 
