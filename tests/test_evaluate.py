@@ -182,3 +182,13 @@ def test_cli_writes_parquet(tmp_path, capsys):
     scores = pl.read_parquet(tmp_path / "out/evaluation.parquet")
     assert scores.select("tp", "fp", "fn", "ba_timestamp").row(0) == (1, 0, 0, 1.0)
     assert pl.read_parquet(tmp_path / "out/evaluation_events.parquet")["outcome"].to_list() == ["tp", "tp"]
+
+
+def test_pooled_f1_sums_the_events_of_every_seed():
+    """campaign --pool: F1 from the summed TP, FP and FN of a regime's seeds, beside its lowest run."""
+    from logiq_sql.evaluation.campaign import pooled_markdown
+
+    runs = pl.DataFrame({"scenario": ["s", "s"], "regime": ["r", "r"], "noise": ["exact", "exact"],
+                         "tp": [20, 30], "fp": [0, 1], "fn": [3, 0], "f1": [40 / 43, 60 / 61]})
+    row = pooled_markdown(runs).splitlines()[2]
+    assert row == f"| s | r | exact | 2 | 50 / 1 / 3 | {100 / 104:.3f} | {40 / 43:.3f} |"

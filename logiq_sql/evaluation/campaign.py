@@ -136,6 +136,22 @@ def sweep_markdown(scores: pl.DataFrame) -> str:
     return "\n".join([head, *lines]) + "\n"
 
 
+def pooled_markdown(scores: pl.DataFrame) -> str:
+    """Event F1 per scenario, regime and noise level over all their seeds (TP, FP and FN summed: how the accuracy
+    targets are read, docs/evaluation.md), beside the lowest F1 of one seed."""
+    g = (scores.group_by("scenario", "regime", "noise")
+         .agg(pl.len().alias("runs"), pl.col("tp").sum(), pl.col("fp").sum(), pl.col("fn").sum(),
+              pl.col("f1").min().alias("lowest"))
+         .with_columns(pooled=2 * pl.col("tp") / (2 * pl.col("tp") + pl.col("fp") + pl.col("fn")))
+         .sort("scenario", "regime", "noise"))
+    head = ("| scenario | regime | noise | runs | TP / FP / FN | pooled F1 | lowest run |\n"
+            "|---|---|---|---:|---|---:|---:|")
+    lines = [f"| {r['scenario']} | {r['regime']} | {r['noise']} | {r['runs']} | {r['tp']} / {r['fp']} / {r['fn']} | "
+             + " | ".join("-" if r[k] is None else f"{r[k]:.3f}" for k in ("pooled", "lowest")) + " |"
+             for r in g.iter_rows(named=True)]
+    return "\n".join([head, *lines]) + "\n"
+
+
 def tables(scores: pl.DataFrame) -> str:
     """The tables of docs/evaluation.md: per regime, seed, noise level and scenario; the sweep."""
     main_levels = scores.filter(pl.col("noise").is_in(list(NOISE)))
@@ -153,8 +169,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sweep", nargs="*", choices=list(REGIMES), metavar="REGIME",
                    help="also the noise sweep (position 0.1/0.2/0.4 m, 2 and 5 %% drops) on the first seed of these "
                         "regimes (none given: every regime)")
+    p.add_argument("--pool", nargs="*", metavar="DIR", help="only print the pooled F1 per regime over the "
+                   "scores.parquet of --out DIR and these campaign folders (exact and perception noise)")
     args = p.parse_args(argv)
     out = Path(args.out)
+    if args.pool is not None:
+        scores = pl.concat([pl.read_parquet(Path(d) / "scores.parquet") for d in [out, *args.pool]])
+        print(pooled_markdown(scores.filter(pl.col("noise").is_in(list(NOISE)))))
+        return 0
     if args.tables:
         print(tables(pl.read_parquet(out / "scores.parquet")))
         return 0
