@@ -3,16 +3,23 @@
     python -m benchmarks.components --tier M      # after `make bench TIER=M` wrote benchmarks/work/M/parquet
 
 Each part is the least a pipeline of this kind must do, written as one plain DuckDB statement over the tier's
-tracks.parquet, with nothing of logiq_sql around it:
+tracks.parquet (localisation: plain shapely over it and lanes.parquet), with nothing of logiq_sql around it:
 
     floor          the benchmark floor: scan + group-by over the track columns (benchmarks/tiers.py)
     window         one per-actor window (the previous sample), the least that speeds, headings, lane runs and
                    phase islands need; summed so that nothing is written
     write          the tracks written once into a DuckDB file (what ingest must do so that matching can rerun)
     pair join      every 10th actor paired with every actor of its frame within 200 m (the relation range),
-                   counted only: the least work behind any ego-actor relation
+                   counted only: the least work behind any ego-actor relation; an equi-join on (drive, frame, x
+                   band) as relations.sql pairs them (bands of 201 m, each ego row probing its band and the two
+                   beside it: the cheapest pairing measured, benchmarks/README.md)
+    localisation   every moving row's lanes: the lanes whose bounding box grown by 3 m holds the point (an
+                   STRtree of them), then a point-in-polygon test against each; no distance, no direction, no
+                   rows written. The least a lane look-up against polygon lanes does; both cores (a thread each,
+                   with its own geometries)
 
-The sum of these parts, against the 20x target, says how far any SQL design of the pipeline could get.
+The sum of these parts says how far any design of the pipeline could get: the issue-15 targets are 40x the floor
+end to end (which holds every part) and 3 M rows/s re-matching (which holds the pair join, not the rest).
 Written: benchmarks/results/<TIER>_components.json and .md.
 """
 
@@ -22,9 +29,13 @@ import argparse
 import json
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import duckdb
+import numpy as np
+import polars as pl
+import shapely
 
 from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
 
@@ -37,20 +48,70 @@ PARTS = {
         )""",
     "write": "create table tracks as select * from read_parquet($path)",
     "pair join": """
-        with t as (select drive_id, actor_id, frame, x_m, y_m from read_parquet($path)),
+        with t as (
+            select drive_id, actor_id, frame, x_m, y_m, cast(floor(x_m / 201.0) as bigint) as band
+            from read_parquet($path)
+        ),
         every_tenth as (
             select drive_id, actor_id from (
                 select drive_id, actor_id, row_number() over (partition by drive_id order by actor_id) as n
                 from (select distinct drive_id, actor_id from t))
             where n % 10 = 1
         ),
-        egos as (select t.* from t inner join every_tenth using (drive_id, actor_id))
+        egos as (
+            select t.drive_id, t.actor_id, t.frame, t.x_m, t.y_m, t.band + n.d as band
+            from t
+            inner join every_tenth using (drive_id, actor_id)
+            cross join (select -1 as d union all select 0 as d union all select 1 as d) as n
+        )
         select count(*) from egos as e
         inner join t as a
-            on e.drive_id = a.drive_id and e.frame = a.frame and e.actor_id <> a.actor_id
+            on e.drive_id = a.drive_id and e.frame = a.frame and e.band = a.band and e.actor_id <> a.actor_id
             and (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m) <= 40000
         """,
 }
+
+
+MOVING = "kind not in ('object', 'fod', 'sign')"  # the kinds localisation skips (logiq_sql.localise.STATIC_KINDS)
+RANGE_M = 3.0  # logiq_sql.schema.LOCALISATION_RANGE_M
+
+
+def inside_count(wkb: np.ndarray, x: np.ndarray, y: np.ndarray) -> int:
+    """How many (point, lane) pairs have the point inside the lane, for the points whose lane boxes (grown by
+    RANGE_M) hold them; one thread's own geometries (GEOS ones are not safe to share between threads)."""
+    polygons = shapely.from_wkb(wkb)
+    b = shapely.bounds(polygons)
+    tree = shapely.STRtree(shapely.box(b[:, 0] - RANGE_M, b[:, 1] - RANGE_M, b[:, 2] + RANGE_M, b[:, 3] + RANGE_M))
+    shapely.prepare(polygons)
+    total = 0
+    for start in range(0, len(x), 250_000):
+        cx, cy = x[start:start + 250_000], y[start:start + 250_000]
+        row, lane = tree.query(shapely.points(cx, cy))
+        total += int(shapely.contains_xy(polygons[lane], cx[row], cy[row]).sum())
+    return total
+
+
+def localisation(path: Path) -> int:
+    """The localisation part: every moving row tested against the lanes of its drive's map, map by map, the rows
+    of a map split between two threads."""
+    parquet = path.parent
+    with duckdb.connect() as con:
+        rows = con.sql(f"""
+            select d.map_id, t.x_m, t.y_m from read_parquet('{path}') as t
+            inner join read_parquet('{parquet / "drives.parquet"}') as d on t.drive_id = d.drive_id
+            where {MOVING} order by d.map_id""").pl()
+    lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "polygon_wkt"])
+    total = 0
+    with ThreadPoolExecutor(2) as pool:
+        for (map_id,), on_map in rows.partition_by("map_id", as_dict=True, maintain_order=True).items():
+            polygons = lanes.filter(pl.col("map_id") == map_id)["polygon_wkt"].to_numpy()
+            if not len(polygons):
+                continue
+            wkb = shapely.to_wkb(shapely.from_wkt(polygons))
+            x, y = on_map["x_m"].to_numpy(), on_map["y_m"].to_numpy()
+            half = len(x) // 2
+            total += sum(pool.map(inside_count, [wkb, wkb], [x[:half], x[half:]], [y[:half], y[half:]]))
+    return total
 
 
 def measure(path: Path) -> dict[str, float]:
@@ -60,6 +121,9 @@ def measure(path: Path) -> dict[str, float]:
             start = time.perf_counter()
             con.execute(sql, {"path": str(path)}).fetchall()
             seconds[name] = time.perf_counter() - start
+    start = time.perf_counter()
+    localisation(path)
+    seconds["localisation"] = time.perf_counter() - start
     return seconds
 
 
