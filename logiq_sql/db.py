@@ -242,7 +242,9 @@ def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, d
 
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
-DEFAULT_MEMORY_LIMIT = "4GB"  # DuckDB spills to <file>.tmp beyond this instead of growing
+# DuckDB spills to <file>.tmp beyond this instead of growing. 3 GB (2.79 GiB) keeps a whole run, Python and
+# Polars included, under 4 GiB resident at 50 M rows (README, "Memory"); at 4 GB a tier-L run peaked at 5.07 GiB
+DEFAULT_MEMORY_LIMIT = "3GB"
 
 
 def memory_limit() -> str:
