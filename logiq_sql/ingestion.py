@@ -69,6 +69,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
 
 
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
+INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
 
 def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
@@ -84,6 +85,10 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
     batch_rows = 0
     seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
     with db.open_for_write(db_path, wait_s, progress) as con:
+        # the reader holds up to CHUNK_ROWS rows in Polars and the batch is localised in Python beside DuckDB:
+        # DuckDB gets half the limit (its cache of a large file would fill all of it; at 50 M rows the rest came
+        # to 2 GiB, README "Memory")
+        db.share_memory(con, INGEST_DUCKDB_SHARE)
         for i, path in enumerate(files, 1):
             count = 0
             try:
