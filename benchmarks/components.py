@@ -97,9 +97,10 @@ def localisation(path: Path) -> int:
     parquet = path.parent
     with duckdb.connect() as con:
         rows = con.sql(f"""
-            select d.map_id, t.x_m, t.y_m from read_parquet('{path}') as t
-            inner join read_parquet('{parquet / "drives.parquet"}') as d on t.drive_id = d.drive_id
-            where {MOVING} order by d.map_id""").pl()
+            select d.map_id, t.x_m, t.y_m from read_parquet($tracks) as t
+            inner join read_parquet($drives) as d on t.drive_id = d.drive_id
+            where {MOVING} order by d.map_id""",
+            params={"tracks": str(path), "drives": str(parquet / "drives.parquet")}).pl()
     lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "polygon_wkt"])
     total = 0
     with ThreadPoolExecutor(2) as pool:

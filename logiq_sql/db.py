@@ -242,8 +242,9 @@ def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, d
 
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
-# DuckDB spills to <file>.tmp beyond this instead of growing. 3 GB (2.79 GiB) keeps a whole run, Python and
-# Polars included, under 4 GiB resident at 50 M rows (README, "Memory"); at 4 GB a tier-L run peaked at 5.07 GiB
+# DuckDB spills to <file>.tmp beyond this instead of growing. 3 GB (2.79 GiB), with ingest's half of it
+# (ingestion.INGEST_DUCKDB_SHARE), kept a 50 M-row run, Python and Polars included, at 3.80 GiB resident (README,
+# "Memory"); at 4 GB it peaked at 5.07 GiB
 DEFAULT_MEMORY_LIMIT = "3GB"
 
 

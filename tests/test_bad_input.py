@@ -666,6 +666,7 @@ def test_a_reingested_drive_without_matches_keeps_no_old_relations(tmp_path):
 def test_ingest_gives_duckdb_half_the_memory_limit(tmp_path, monkeypatch, limit, shared):
     """The reader's chunk and the batch's localisation sit in Python beside DuckDB while ingesting, so DuckDB gets
     half of LOGIQ_SQL_MEMORY_LIMIT there (db.share_memory); match keeps the whole limit."""
+    from logiq_sql import db as logiq_db
     from logiq_sql import ingestion
 
     monkeypatch.setenv("LOGIQ_SQL_MEMORY_LIMIT", limit)
@@ -679,8 +680,6 @@ def test_ingest_gives_duckdb_half_the_memory_limit(tmp_path, monkeypatch, limit,
     monkeypatch.setattr(ingestion, "write_drives", spy)
     ingest("parquet", [write(tmp_path / "in", scene())], tmp_path / "x.duckdb")
     assert seen and set(seen) == {shared}
-    from logiq_sql import db as logiq_db
-
     with logiq_db.connect(tmp_path / "x.duckdb") as con:
         assert con.execute("select current_setting('memory_limit')").fetchall()[0][0] == {
             "2GiB": "2.0 GiB", "512MiB": "512.0 MiB", "3GB": "2.7 GiB"}[limit]
