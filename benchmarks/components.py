@@ -3,7 +3,8 @@
     python -m benchmarks.components --tier M      # after `make bench TIER=M` wrote benchmarks/work/M/parquet
 
 Each part is the least a pipeline of this kind must do, written as one plain DuckDB statement over the tier's
-tracks.parquet (localisation: plain shapely over it and lanes.parquet), with nothing of logiq_sql around it:
+tracks.parquet (localisation: plain shapely over it and lanes.parquet), with nothing of logiq_sql around it but
+its constants (the static kinds, the 3 m range):
 
     floor          the benchmark floor: scan + group-by over the track columns (benchmarks/tiers.py)
     window         one per-actor window (the previous sample), the least that speeds, headings, lane runs and
@@ -38,6 +39,8 @@ import polars as pl
 import shapely
 
 from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
+from logiq_sql.localise import CHUNK_POINTS, STATIC_KINDS
+from logiq_sql.schema import LOCALISATION_RANGE_M as RANGE_M
 
 PARTS = {
     "floor": FLOOR_SQL,
@@ -72,10 +75,6 @@ PARTS = {
 }
 
 
-MOVING = "kind not in ('object', 'fod', 'sign')"  # the kinds localisation skips (logiq_sql.localise.STATIC_KINDS)
-RANGE_M = 3.0  # logiq_sql.schema.LOCALISATION_RANGE_M
-
-
 def inside_count(wkb: np.ndarray, x: np.ndarray, y: np.ndarray) -> int:
     """How many (point, lane) pairs have the point inside the lane, for the points whose lane boxes (grown by
     RANGE_M) hold them; one thread's own geometries (GEOS ones are not safe to share between threads)."""
@@ -84,8 +83,8 @@ def inside_count(wkb: np.ndarray, x: np.ndarray, y: np.ndarray) -> int:
     tree = shapely.STRtree(shapely.box(b[:, 0] - RANGE_M, b[:, 1] - RANGE_M, b[:, 2] + RANGE_M, b[:, 3] + RANGE_M))
     shapely.prepare(polygons)
     total = 0
-    for start in range(0, len(x), 250_000):
-        cx, cy = x[start:start + 250_000], y[start:start + 250_000]
+    for start in range(0, len(x), CHUNK_POINTS):
+        cx, cy = x[start:start + CHUNK_POINTS], y[start:start + CHUNK_POINTS]
         row, lane = tree.query(shapely.points(cx, cy))
         total += int(shapely.contains_xy(polygons[lane], cx[row], cy[row]).sum())
     return total
@@ -96,11 +95,12 @@ def localisation(path: Path) -> int:
     of a map split between two threads."""
     parquet = path.parent
     with duckdb.connect() as con:
-        rows = con.sql(f"""
+        rows = con.sql("""
             select d.map_id, t.x_m, t.y_m from read_parquet($tracks) as t
             inner join read_parquet($drives) as d on t.drive_id = d.drive_id
-            where {MOVING} order by d.map_id""",
-            params={"tracks": str(path), "drives": str(parquet / "drives.parquet")}).pl()
+            where not list_contains($static_kinds, t.kind) order by d.map_id""",
+            params={"tracks": str(path), "drives": str(parquet / "drives.parquet"),
+                    "static_kinds": list(STATIC_KINDS)}).pl()
     lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "polygon_wkt"])
     total = 0
     with ThreadPoolExecutor(2) as pool:

@@ -250,11 +250,12 @@ DEFAULT_MEMORY_LIMIT = "3GB"
 
 _SIZE_UNITS = {"KB": 10**3, "MB": 10**6, "GB": 10**9, "TB": 10**12,
                "KiB": 2**10, "MiB": 2**20, "GiB": 2**30, "TiB": 2**40}
+_SIZE = re.compile(rf"(\d+(?:\.\d+)?)\s*({'|'.join(_SIZE_UNITS)})")
 
 
 def memory_limit() -> str:
     value = os.environ.get(MEMORY_LIMIT_ENV, DEFAULT_MEMORY_LIMIT).strip()
-    if not re.fullmatch(r"\d+(\.\d+)?\s*(KB|MB|GB|TB|KiB|MiB|GiB|TiB)", value):
+    if not _SIZE.fullmatch(value):
         raise LogiqError(f"{MEMORY_LIMIT_ENV}={value!r}: write a size such as 4GB or 512MiB.")
     return value
 
@@ -262,7 +263,7 @@ def memory_limit() -> str:
 def share_memory(con: duckdb.DuckDBPyConnection, fraction: float) -> None:
     """Give DuckDB only ``fraction`` of the memory limit on this connection: for a step that holds data of its own in
     Python beside DuckDB (ingest's reader), so that the two together stay within the limit's budget."""
-    number, unit = re.fullmatch(r"(\d+(?:\.\d+)?)\s*(\w+)", memory_limit()).groups()
+    number, unit = _SIZE.fullmatch(memory_limit()).groups()
     con.execute("set memory_limit = $limit", {"limit": f"{int(float(number) * _SIZE_UNITS[unit] * fraction)}B"})
 
 
