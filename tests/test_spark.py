@@ -256,5 +256,5 @@ def test_rendered_spark_sql_binds_its_parameters_and_parses(spark):
         printed = render(s.name, {k: v for k, v in s.overrides.items()}, engine="spark")
         assert printed.endswith(text + "\n")
         assert all(f"-- :{name} = " in printed for name in args)
-    cyclist = render("cyclist_close_to_moving_sut", {"max_distance_from_cyclist": "6m"}, engine="spark")
+    cyclist = render("cyclist_close_to_moving_sut", overrides={"max_distance_from_cyclist": "6m"}, engine="spark")
     assert "-- :max_distance_from_cyclist_m = 6.0\n" in cyclist
