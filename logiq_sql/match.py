@@ -142,8 +142,8 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
     if batch_rows is None:
         batch_rows = SPARK_RESULTS_BATCH_ROWS if results is not None else MATCH_BATCH_ROWS
     if results is not None and engine != "spark":
-        raise ScenarioError("results written as a Parquet dataset by the engine need --engine spark; with another "
-                            "engine the results go into the DuckDB file (and --out exports them).")
+        raise ScenarioError(f"{arg('engine', engine)}: results written as a Parquet dataset need the spark "
+                            "engine; with another engine the results go into the DuckDB file (and --out exports them).")
     with db.open_for_write(db_path, wait_s, say) as con, contextlib.ExitStack() as cleanup:
         run_drives = select_run_drives(con, drives)
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])

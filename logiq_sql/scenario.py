@@ -192,7 +192,7 @@ def scenario_files(directory: ScenarioPath = None) -> dict[str, Path]:
     if directory is not None:
         folder = Path(directory)
         if not folder.is_dir():
-            raise ScenarioError(f"--scenario-path {folder}: no such folder.")
+            raise ScenarioError(f"{arg('scenario_path', folder)}: no such folder.")
         files.update({p.stem: p for p in sorted(folder.glob("*.toml"))})
     return files
 
