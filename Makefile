@@ -21,16 +21,17 @@ demo: venv
 	$(BIN)/logiq-sql ingest av2 tests/data/av2 --db $(DEMO_DB) --quiet
 	$(BIN)/logiq-sql match --db $(DEMO_DB) --out demo/out
 	@echo; echo "Closest followers (NGSIM: every car is the SUT in turn):"
-	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 8 "select m.drive_id, m.ego_id, m.actor_id, m.start_s, m.end_s, \
-	  k.ego_avg_speed_mph, k.ego_min_distance_to_vehicle_m as min_gap_m, k.ego_min_ttc_to_vehicle_s as min_ttc_s \
+	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 8 "select m.drive_id, m.ego_id, m.actor_id, round(m.start_s, 1) as start_s, round(m.end_s, 1) as end_s, \
+	  round(k.ego_avg_speed_mph, 1) as ego_avg_speed_mph, round(k.ego_min_distance_to_vehicle_m, 3) as min_gap_m, \
+	  round(k.ego_min_ttc_to_vehicle_s, 3) as min_ttc_s \
 	  from matches m join kpis k using (match_id) where m.scenario = 'follower_vehicle' order by min_gap_m limit 8"
 	@echo; echo "Coverage of follower_vehicle, ego_speed_at_start (mph):"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select bucket, hits from coverage where scenario = 'follower_vehicle' \
 	  and item = 'ego_speed_at_start' order by bucket_index nulls last"
 	@echo; echo "Ego cut-outs (sut_cut_out), with both phases and the coverage sampled at the lane change:"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) --limit 6 "select m.drive_id, m.ego_id, m.actor_id, \
-	  max(case when p.phase_index = 1 then p.start_s end) as follow_from_s, \
-	  max(case when p.phase_index = 2 then p.start_s end) as lane_change_s, m.end_s, \
+	  round(max(case when p.phase_index = 1 then p.start_s end), 1) as follow_from_s, \
+	  round(max(case when p.phase_index = 2 then p.start_s end), 1) as lane_change_s, round(m.end_s, 1) as end_s, \
 	  round(k.speed_at_change_lane_kph, 1) as npc_kph, round(k.distance_at_change_lane_m, 1) as gap_m, \
 	  k.side_of_npc_relative_to_ego_at_lane_change as npc_side \
 	  from matches m join match_phases p using (match_id) join kpis k using (match_id) \
@@ -45,11 +46,11 @@ demo: venv
 	rm -f demo/sumo.duckdb
 	$(BIN)/logiq-sql ingest sumo tests/data/sumo/junction_s1 --db demo/sumo.duckdb --quiet
 	$(BIN)/logiq-sql match --db demo/sumo.duckdb --scenario unprotected_left_turn_with_yield_and_traffic_light --ego every:3 --quiet
-	@$(BIN)/logiq-sql query --db demo/sumo.duckdb --limit 6 "select m.ego_id, m.actor_id, m.start_s, \
+	@$(BIN)/logiq-sql query --db demo/sumo.duckdb --limit 6 "select m.ego_id, m.actor_id, round(m.start_s, 1) as start_s, \
 	  string_agg(round(p.end_s - p.start_s + 0.1, 1)::varchar, ' + ' order by p.phase_index) as phase_seconds, \
 	  k.traversal_relative_direction as traversal, k.pet_between_sut_and_npc_s as pet_s \
 	  from matches m join match_phases p using (match_id) join kpis k using (match_id) group by all \
-	  order by m.start_s limit 6"
+	  order by start_s limit 6"
 	$(BIN)/logiq-sql report --db $(DEMO_DB) --out demo/report.html
 	@echo; echo "Drives: $(DEMO_DB) (tables documented in docs/tables.md); Parquet in demo/out/; report in demo/report.html"
 	@$(BIN)/logiq-sql query --db $(DEMO_DB) "select status, count(*) as drives, cast(sum(matches) as bigint) as matches from drives group by 1"

@@ -8,11 +8,19 @@
     result.matches          # polars.DataFrame, one row per match
     print(lq.render("cyclist_close_to_moving_sut"))   # the SQL that runs
     lq.match_frames(tracks, lanes=lanes)   # frames in, frames out, nothing written (logiq_sql/frames.py)
+    con = lq.connect("drives.duckdb")       # read-only: the state the last completed run published
+    con.sql("select scenario, count(*) from matches group by 1").pl()
+
+Every option is keyword-only; errors name the Python argument (``overrides['max_gap']='4'``), not the flag.
 """
 
 from __future__ import annotations
 
-from logiq_sql.db import connect as connect
+from pathlib import Path
+
+import duckdb
+
+from logiq_sql import db as _db
 from logiq_sql.errors import InputError as InputError
 from logiq_sql.errors import LogiqError as LogiqError
 from logiq_sql.errors import ScenarioError as ScenarioError
@@ -32,3 +40,11 @@ __all__ = [
     "list_scenarios", "load_scenario", "match", "match_dataset", "match_frames", "render",
 ]
 __version__ = "0.1.0"
+
+
+def connect(path: str | Path, *, read_only: bool = True) -> duckdb.DuckDBPyConnection:
+    """Open a logiq_sql DuckDB file. Read-only by default: the file as the last completed run published it, never
+    blocked by a run and never blocking one. ``read_only=False`` opens it read-write in place (creating it with every
+    table): only for a file no run and no reader uses, since a run that finds its file changed under its copy does
+    not publish (docs/operations.md)."""
+    return _db.open_for_read(path) if read_only else _db.connect(path)

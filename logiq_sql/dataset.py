@@ -25,7 +25,7 @@ from pathlib import Path
 import duckdb
 
 from logiq_sql import schema
-from logiq_sql.errors import InputError
+from logiq_sql.errors import InputError, arg
 
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
 MARKER = "_logiq_sql_dataset"  # written at the top of a dataset: what attach and --engine spark check
@@ -86,15 +86,15 @@ def attach(con: duckdb.DuckDBPyConnection, folder: str | Path) -> None:
     rows: they would be hidden."""
     folder = Path(folder).resolve()
     if not is_dataset(folder):
-        raise InputError(f"--dataset {folder}: not a logiq_sql dataset (no {MARKER} file); write one with "
+        raise InputError(f"{arg('dataset', folder)}: not a logiq_sql dataset (no {MARKER} file); write one with "
                          "`logiq-sql ingest FORMAT PATHS --dataset DIR`.")
     kinds = dict(con.execute("select table_name, 'table' from duckdb_tables() where schema_name = 'main' and "
                              "database_name = current_database()").fetchall())
     for table in INPUT_TABLES:
         if kinds.get(table.name) == "table":
             if con.execute(f"select count(*) from main.{table.name}").fetchone()[0]:
-                raise InputError(f"--dataset {folder}: the --db file already holds ingested rows in "
-                                 f"{table.name}; give a new --db file for a dataset.")
+                raise InputError(f"{arg('dataset', folder)}: the results file already holds ingested rows in "
+                                 f"{table.name}; give a new results file for a dataset.")
             con.execute(f"drop table main.{table.name}")
         files = folder / table.name
         cols = ", ".join(table.column_names)

@@ -243,8 +243,8 @@ def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, d
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
 # DuckDB spills to <file>.tmp beyond this instead of growing. 3 GB (2.79 GiB), with ingest's half of it
-# (ingestion.INGEST_DUCKDB_SHARE), kept a 50 M-row run, Python and Polars included, at 3.80 GiB resident (README,
-# "Memory"); at 4 GB it peaked at 5.07 GiB
+# (ingestion.INGEST_DUCKDB_SHARE), kept a 50 M-row run, Python and Polars included, at 3.80 GiB resident
+# (docs/operations.md, "Memory"); at 4 GB it peaked at 5.07 GiB
 DEFAULT_MEMORY_LIMIT = "3GB"
 
 
@@ -447,8 +447,8 @@ class Writer:
                 raise DiskFullError(
                     f"{self.path}: the disk filled up while this run wrote its copy {self.work} ({free / 1e6:,.0f} MB "
                     f"free now that the copy is removed). The run stopped; {self.path} is as the last completed run "
-                    "left it. A run needs free space for a copy of the file plus what it adds (README, 'Disk "
-                    "space'): free some and rerun.") from exc
+                    "left it. A run needs free space for a copy of the file plus what it adds (docs/operations.md, "
+                    "'Disk space'): free some and rerun.") from exc
         finally:
             self._lock.release()
 

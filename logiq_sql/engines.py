@@ -31,7 +31,7 @@ import sqlglot
 from sqlglot import exp
 
 from logiq_sql import dataset, schema
-from logiq_sql.errors import LogiqError
+from logiq_sql.errors import LogiqError, arg
 from logiq_sql.paths import query_path
 from logiq_sql.sql import bind, materialise, query_text, sql_literal, step_key, used_values
 
@@ -249,12 +249,13 @@ def spark_session(master: str | None = None):
     try:
         from pyspark.sql import SparkSession
     except ImportError:
-        raise EngineError("--engine spark needs PySpark and Java 17: pip install 'logiq-sql[spark]'.") from None
+        raise EngineError(f"{arg('engine', 'spark')} needs PySpark and Java 17: pip install "
+                          "'logiq-sql[spark]'.") from None
     active = SparkSession.getActiveSession()
     if active is not None:
         if master and active.sparkContext.master != master:
-            raise EngineError(f"--spark-master {master}: this process already has a Spark session on "
-                              f"{active.sparkContext.master}; stop it first, or leave --spark-master out to use it.")
+            raise EngineError(f"{arg('spark_master', master)}: this process already has a Spark session on "
+                              f"{active.sparkContext.master}; stop it first, or leave the master unset to use it.")
         return active
     # Python steps (SparkEngine.derive) run in the executors' Python, by default `python3` on the PATH: in local
     # mode and on this machine's workers that must be this interpreter, which has the dependencies
@@ -416,11 +417,11 @@ def _derive_per_drive(packed, compute, columns: dict[str, list[tuple[str, str]]]
 def check_engine(name: str, relatives: list[str]) -> None:
     """Raise before anything runs if a query of the run cannot run on engine ``name``."""
     if name not in ENGINES:
-        raise EngineError(f"--engine {name}: choose one of {', '.join(ENGINES)}.")
+        raise EngineError(f"{arg('engine', name)}: choose one of {', '.join(ENGINES)}.")
     for rel in relatives:
         if name == "polars" and (reason := polars_blocker(rel)):
-            raise EngineError(f"--engine polars: queries/{rel} cannot run on Polars SQL: {reason}. "
-                              "Run this scenario with --engine duckdb or spark (docs/engines.md: what runs where).")
+            raise EngineError(f"{arg('engine', 'polars')}: queries/{rel} cannot run on Polars SQL: {reason}. "
+                              "Run this scenario on the duckdb or spark engine (docs/engines.md: what runs where).")
 
 
 def render_spark_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> tuple[str, dict[str, object]]:
@@ -438,8 +439,8 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
     """``render --engine spark``: the scenario's CTE chain in Spark SQL, headed by the values to bind as comments
     and the call that binds them. The values are never part of the SQL text."""
     if name != "spark":
-        raise EngineError(f"render --engine {name}: render prints DuckDB (default) or Spark SQL; Polars SQL has no "
-                          "parameters, so there is no bound statement to print.")
+        raise EngineError(f"render {arg('engine', name)}: render prints DuckDB (default) or Spark SQL; Polars SQL "
+                          "has no parameters, so there is no bound statement to print.")
     text, args = render_spark_steps(steps, values)
     header = [f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}, Spark SQL",
               "-- bind the parameters, never format them in:  spark.sql(text, args={...the values below...})"]
@@ -460,7 +461,7 @@ def open_engine(name: str, con: duckdb.DuckDBPyConnection, spark_master: str | N
         return SparkEngine(con, spark_master, spark_tables)
     if name == "polars":
         return PolarsEngine(con)
-    raise EngineError(f"--engine {name}: choose one of {', '.join(ENGINES)}.")
+    raise EngineError(f"{arg('engine', name)}: choose one of {', '.join(ENGINES)}.")
 
 
 # --------------------------------------------------------------------------------------------------- Polars

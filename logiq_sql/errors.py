@@ -1,16 +1,54 @@
-"""Errors that name the file, the key or column, and the fix."""
+"""Errors that name the file, the key or column, and the fix.
+
+A message names the caller's argument with ``arg("overrides", "max_gap=4")``: Python callers read
+``overrides['max_gap']='4'``-style names (``str(error)``), the command line reads its flag (``--set max_gap=4``,
+``LogiqError.render`` with the CLI's table of flags). One message, two spellings of the argument.
+"""
 
 from __future__ import annotations
 
 import difflib
+import re
+from collections.abc import Mapping
+
+_ARG = re.compile(r"\x00(\w+)\x01([^\x01\x02]*)\x01([^\x01\x02]*)\x02")
+
+
+def arg(name: str, value: object = "", key: str = "") -> str:
+    """The Python argument ``name`` (with the ``value`` the caller gave, and for a dict argument its ``key``) as it
+    appears inside a message; rendered as ``name=value`` for Python and as the command-line flag by the CLI."""
+    return f"\x00{name}\x01{key}\x01{value}\x02"
+
+
+def _python(m: re.Match) -> str:
+    name, key, value = m.groups()
+    if key:
+        return f"{name}[{key!r}]={value!r}"
+    return f"{name}={value!r}" if value else f"{name}="
 
 
 class LogiqError(ValueError):
     """Base of every error logiq_sql raises on bad input."""
 
+    def render(self, flags: Mapping[str, str] | None = None) -> str:
+        """The message; with ``flags`` (Python argument -> command-line flag) the arguments read as flags."""
+        text = super().__str__()
+        if flags is None:
+            return _ARG.sub(_python, text)
+
+        def flag(m: re.Match) -> str:
+            name, key, value = m.groups()
+            spelt = flags.get(name, "--" + name.replace("_", "-"))
+            return f"{spelt} {key}={value}" if key else f"{spelt} {value}".rstrip()
+
+        return _ARG.sub(flag, text)
+
+    def __str__(self) -> str:
+        return self.render()
+
 
 class ScenarioError(LogiqError):
-    """A scenario file or a --set override is wrong."""
+    """A scenario file or a parameter override is wrong."""
 
 
 class UnitError(LogiqError):

@@ -29,9 +29,16 @@ from pathlib import Path
 
 import polars as pl
 
-from logiq_sql import db, units
-from logiq_sql.errors import ScenarioError
-from logiq_sql.plan import DEFAULT_RELATION_RANGE, parse_ego, phase_steps, resolve_scenarios, run_values
+from logiq_sql import db
+from logiq_sql.errors import ScenarioError, arg
+from logiq_sql.plan import (
+    DEFAULT_RELATION_RANGE,
+    parse_ego,
+    phase_steps,
+    relation_range_m,
+    resolve_scenarios,
+    run_values,
+)
 from logiq_sql.runner import prepare_relations
 from logiq_sql.scenario import Scenario, ScenarioPath
 from logiq_sql.sql import materialise
@@ -138,7 +145,7 @@ def _failed(phase_index: int, s: Scenario, schema: pl.Schema) -> pl.Expr:
     return pl.concat_list(texts).list.drop_nulls()
 
 
-def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str | None = None,
+def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: str | None = None,
             overrides: dict[str, str] | None = None, relation_range: str = DEFAULT_RELATION_RANGE,
             scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> Explanation:
     """Explain, for each (ego, actor) pair of ``drive`` that phase 1's query considers, how far the scenario
@@ -152,9 +159,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     try:
         known = [r[0] for r in con.execute("select drive_id from drive_inputs").fetchall()]
         if drive not in known:
-            raise ScenarioError(f"explain --drive {drive}: no such drive in {db_path}.")
+            raise ScenarioError(f"explain {arg('drive', drive)}: no such drive in {db_path}.")
         con.register("run_drives", pl.DataFrame({"drive_id": [drive]}))
-        values = run_values(s, parse_ego(ego, ego_kinds), units.parse(relation_range, "length", "--relation-range"))
+        values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
         prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
         for table, rel in phase_steps(s):
             materialise(con, table, rel, values)
@@ -183,8 +190,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     if actor is not None:
         pairs = pairs.filter(pl.col("actor_id") == actor)
         if pairs.is_empty():
-            raise ScenarioError(f"explain --actor {actor}: phase 1's query ({s.phases[0].query}) has no row for this "
-                                f"actor and ego in drive {drive} (too far apart, or not within --relation-range).")
+            raise ScenarioError(f"explain {arg('actor', actor)}: phase 1's query ({s.phases[0].query}) has no row "
+                                f"for this actor and ego in drive {drive} (too far apart, or not within "
+                                f"{arg('relation_range', relation_range)}).")
     names = [p.name for p in s.phases]
     slots = list(range(1, len(names) + 1))  # phase_index of each phase
     phase_name = pl.col("phase_index").replace_strict(slots, names, default="?")

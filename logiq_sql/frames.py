@@ -96,7 +96,7 @@ def missing_inputs(s: Scenario, given: set[str]) -> str | None:
             f"{', '.join(f'{name}=' for name in lacking)} to match_frames (columns in docs/tables.md).")
 
 
-def match_frames(tracks: object, drives: object = None, lanes: object = None, lane_successors: object = None,
+def match_frames(tracks: object, *, drives: object = None, lanes: object = None, lane_successors: object = None,
                  junctions: object = None, traffic_lights: object = None, traffic_light_states: object = None,
                  scenarios: list[str] | None = None, overrides: dict[str, str] | None = None, ego: str = "auto",
                  relation_range: str = DEFAULT_RELATION_RANGE,

@@ -72,7 +72,7 @@ BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track
 INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
 
-def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path,
+def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
            progress: Callable[[str], None] | None = None, wait_s: float = 0.0) -> IngestSummary:
     """Read every file of ``paths`` with the ``fmt`` reader into the DuckDB file ``db_path``, published to its
     readers when every file is read (``db.open_for_write``; ``wait_s``: how long to wait for another writer)."""

@@ -23,16 +23,17 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import db, relations_of, units
+from logiq_sql import db, relations_of
 from logiq_sql.batching import batches
 from logiq_sql.engines import check_engine, open_engine
-from logiq_sql.errors import ScenarioError, did_you_mean
+from logiq_sql.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.plan import (
     ALL_KINDS_CSV,
     DEFAULT_RELATION_RANGE,
     ego_key,
     parse_ego,
     relation_kinds_csv,
+    relation_range_m,
     relation_settings,
     resolve_scenarios,
     run_values,
@@ -90,7 +91,7 @@ class MatchResult:
         return "\n".join(lines)
 
 
-def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "auto",
+def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str = "auto",
           overrides: dict[str, str] | None = None, drives: list[str] | None = None,
           relation_range: str = DEFAULT_RELATION_RANGE, out: str | Path | None = None,
           progress: Callable[[str], None] | None = None, force: bool = False, engine: str = "duckdb",
@@ -137,12 +138,12 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
     chosen = resolve_scenarios(scenarios, overrides or {}, scenario_path)
     ego_values = parse_ego(ego, ego_kinds)
     ego = ego_key(ego, ego_kinds)
-    range_m = units.parse(relation_range, "length", "--relation-range")
+    range_m = relation_range_m(relation_range)
     if batch_rows is None:
         batch_rows = SPARK_RESULTS_BATCH_ROWS if results is not None else MATCH_BATCH_ROWS
     if results is not None and engine != "spark":
-        raise ScenarioError("results written as a Parquet dataset by the engine need --engine spark; with another "
-                            "engine the results go into the DuckDB file (and --out exports them).")
+        raise ScenarioError(f"{arg('engine', engine)}: results written as a Parquet dataset need the spark "
+                            "engine; with another engine the results go into the DuckDB file (and --out exports them).")
     with db.open_for_write(db_path, wait_s, say) as con, contextlib.ExitStack() as cleanup:
         run_drives = select_run_drives(con, drives)
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
@@ -206,7 +207,7 @@ def match(db_path: str | Path, scenarios: list[str] | None = None, ego: str = "a
         return result
 
 
-def match_dataset(dataset: str | Path, out: str | Path, db_path: str | Path | None = None, engine: str = "duckdb",
+def match_dataset(dataset: str | Path, out: str | Path, db_path: str | Path | None = None, *, engine: str = "duckdb",
                   wait_s: float = 0.0, progress: Callable[[str], None] | None = None, **kwargs) -> MatchResult:
     """Match a Parquet dataset (``ingest --dataset``): the results file ``db_path`` (default ``out/logiq.duckdb``)
     gets views over the dataset, and the results go to ``out``: with ``engine="spark"`` Spark writes them itself
@@ -228,7 +229,7 @@ def select_run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) 
     if drives:
         missing = sorted(set(drives) - set(known["drive_id"]))
         if missing:
-            raise ScenarioError(f"--drive {missing[0]}: no such drive in the file."
+            raise ScenarioError(f"{arg('drives', missing[0])}: no such drive in the file."
                                 f"{did_you_mean(missing[0], known['drive_id'].to_list())}")
         known = known.filter(pl.col("drive_id").is_in(drives))
     return known

@@ -11,7 +11,7 @@ from __future__ import annotations
 from logiq_sql import units
 from logiq_sql.contract import check_scenario
 from logiq_sql.engines import render_for_engine
-from logiq_sql.errors import ScenarioError, did_you_mean
+from logiq_sql.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.scenario import MAX_PHASES, Scenario, ScenarioPath, list_scenarios, load_scenario
 from logiq_sql.schema import OBJECT_KINDS
 from logiq_sql.sql import render_steps
@@ -60,10 +60,15 @@ def parse_ego(ego: str, kinds: str | None = None) -> dict[str, object]:
             if n < 1:
                 raise ValueError
         except ValueError:
-            raise ScenarioError(f"--ego {ego}: N in every:N must be a whole number >= 1.") from None
+            raise ScenarioError(f"{arg('ego', ego)}: N in every:N must be a whole number >= 1.") from None
         return {"ego_mode": "every", "ego_every": n, "ego_actor_ids_csv": "", "ego_kinds_csv": ego_kinds}
     return {"ego_mode": "id", "ego_every": 1, "ego_kinds_csv": ego_kinds,
             "ego_actor_ids_csv": "," + ",".join(i.strip() for i in ego.split(",")) + ","}
+
+
+def relation_range_m(text: str) -> float:
+    """``relation_range`` (``--relation-range``) in metres."""
+    return units.parse(text, "length", arg("relation_range", text))
 
 
 def ego_kinds_csv(kinds: str | None) -> str:
@@ -72,10 +77,10 @@ def ego_kinds_csv(kinds: str | None) -> str:
         return "," + ",".join(EGO_KINDS) + ","
     chosen = [EGO_KIND_ALIASES.get(k.strip(), k.strip()) for k in kinds.split(",") if k.strip()]
     if not chosen:
-        raise ScenarioError("--ego-kinds: name at least one kind, e.g. --ego-kinds vehicle,truck.")
+        raise ScenarioError(f"{arg('ego_kinds', kinds)}: name at least one kind, e.g. vehicle,truck.")
     for kind in chosen:
         if kind not in OBJECT_KINDS:
-            raise ScenarioError(f"--ego-kinds {kinds}: '{kind}' is not an evaluation_object_kind."
+            raise ScenarioError(f"{arg('ego_kinds', kinds)}: '{kind}' is not an evaluation_object_kind."
                                 f"{did_you_mean(kind, OBJECT_KINDS)}\n\nHint: e.g. vehicle (car), truck, bus.")
     return "," + ",".join(chosen) + ","
 
@@ -102,7 +107,7 @@ def resolve_scenarios(names: list[str] | None, overrides: dict[str, str],
     for name, text in overrides.items():
         if name not in known:
             raise ScenarioError(
-                f"--set {name}={text}: no scenario of this run has a parameter '{name}'."
+                f"{arg('overrides', text, name)}: no scenario of this run has a parameter '{name}'."
                 f"{did_you_mean(name, sorted(known))}\n\nHint: `logiq-sql scenarios` lists every parameter."
             )
     return [s.with_overrides({k: v for k, v in overrides.items() if k in s.params}) for s in scenarios]
@@ -181,13 +186,13 @@ def scenario_queries(s: Scenario) -> list[str]:
             *s.sample_queries]
 
 
-def render(scenario: str, overrides: dict[str, str] | None = None, ego: str = "auto",
+def render(scenario: str, *, overrides: dict[str, str] | None = None, ego: str = "auto",
            relation_range: str = DEFAULT_RELATION_RANGE, engine: str = "duckdb",
            scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> str:
     """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set (DuckDB),
     or as Spark SQL with the values to bind listed above it (``engine="spark"``)."""
     (s,) = resolve_scenarios([scenario], overrides or {}, scenario_path)
-    values = run_values(s, parse_ego(ego, ego_kinds), units.parse(relation_range, "length", "--relation-range"))
+    values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
     if engine != "duckdb":
         return render_for_engine(engine, s, scenario_steps(s), values)
     header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from logiq_sql import units
-from logiq_sql.errors import ScenarioError, did_you_mean
+from logiq_sql.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.paths import data_dir, query_path
 from logiq_sql.schema import OBJECT_KINDS, VEHICLE_KINDS
 
@@ -140,17 +140,17 @@ class Scenario:
         """SQL parameter name -> canonical value."""
         return {p.sql_name: p.sql_value for p in self.params.values()}
 
-    def with_overrides(self, values: dict[str, str], where: str = "--set") -> Scenario:
+    def with_overrides(self, values: dict[str, str]) -> Scenario:
         """A copy with parameter values replaced; ``values`` maps parameter name to text with unit."""
         params = dict(self.params)
         for name, text in values.items():
             if name not in params:
                 raise ScenarioError(
-                    f"{where} {name}={text}: scenario '{self.name}' has no parameter '{name}'."
+                    f"{arg('overrides', text, name)}: scenario '{self.name}' has no parameter '{name}'."
                     f"{did_you_mean(name, list(params))}\n\nHint: `logiq-sql scenarios` lists every parameter."
                 )
             p = params[name]
-            params[name] = replace(p, text=text, value=_parse_value(p.type, text, f"{where} {name}={text}"))
+            params[name] = replace(p, text=text, value=_parse_value(p.type, text, arg("overrides", text, name)))
         return replace(self, params=params, overrides={**self.overrides, **values})
 
     def metric_columns(self) -> dict[str, tuple[str, str, str]]:
@@ -192,7 +192,7 @@ def scenario_files(directory: ScenarioPath = None) -> dict[str, Path]:
     if directory is not None:
         folder = Path(directory)
         if not folder.is_dir():
-            raise ScenarioError(f"--scenario-path {folder}: no such folder.")
+            raise ScenarioError(f"{arg('scenario_path', folder)}: no such folder.")
         files.update({p.stem: p for p in sorted(folder.glob("*.toml"))})
     return files
 

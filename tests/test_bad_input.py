@@ -491,11 +491,11 @@ def test_a_phase_limit_naming_an_unknown_parameter(tmp_path):
 
 
 @pytest.mark.parametrize(("name", "value", "message"), [
-    ("max_distance_from_cyclist", "5s", ("--set max_distance_from_cyclist=5s: '5s' is a time, but this parameter is "
+    ("max_distance_from_cyclist", "5s", ("overrides['max_distance_from_cyclist']='5s': '5s' is a time, but this parameter is "
                                          "a length.\n\nHint: use a length unit such as 'm'.")),
-    ("sut_minimal_speed", "5m", ("--set sut_minimal_speed=5m: '5m' is a length, but this parameter is a speed.\n\n"
+    ("sut_minimal_speed", "5m", ("overrides['sut_minimal_speed']='5m': '5m' is a length, but this parameter is a speed.\n\n"
                                  "Hint: use a speed unit such as 'mps'.")),
-    ("max_phase_duration", "5", ("--set max_phase_duration=5: '5' has no unit; a time needs one.\n\n"
+    ("max_phase_duration", "5", ("overrides['max_phase_duration']='5': '5' has no unit; a time needs one.\n\n"
                                  "Hint: write it with a unit, e.g. \"5 s\".")),
 ])
 def test_a_parameter_value_with_the_wrong_unit(name, value, message):
@@ -537,7 +537,7 @@ def test_sql_in_the_drive_option_is_a_value(tmp_path):
     ingest("parquet", [write(tmp_path / "in", scene())], db)
     with pytest.raises(ScenarioError) as e:
         match(db, scenarios=["follower_vehicle"], drives=[HOSTILE])
-    assert str(e.value) == f"--drive {HOSTILE}: no such drive in the file."
+    assert str(e.value) == f"drives={HOSTILE!r}: no such drive in the file."
     _tables_intact(db)
 
 

@@ -30,7 +30,7 @@ def matched(tmp_path_factory):
     ingest("scenarionet", [DATA / "nuscenes_mini_scenarionet"], db)
     # the meaning the baseline implements (max_gap 0: a phase ends at every missing frame) on both sides
     overrides = {**CYCLIST_6M, **baseline.SAME_MEANING}
-    result = match(db, list(baseline.BASELINES), ego="every:10", overrides=overrides)
+    result = match(db, scenarios=list(baseline.BASELINES), ego="every:10", overrides=overrides)
     return result.matches, baseline.run(db, overrides)
 
 

@@ -1,4 +1,4 @@
-"""Issue 16: a scheduled run and analysts at the same time (README, "Scheduled runs" and "Disk space").
+"""Issue 16: a scheduled run and analysts at the same time (docs/operations.md, "Scheduled runs" and "Disk space").
 
 Readers open the published file read-only while a run writes its own copy; one writer at a time (a second one
 waits or stops with exit 4); a killed or failed run leaves the published state as it was."""

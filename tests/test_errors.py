@@ -20,14 +20,14 @@ def message(exc_info) -> str:
 def test_wrong_unit_for_a_length():
     with pytest.raises(UnitError) as e:
         resolve_scenarios(["cyclist_close_to_moving_sut"], {"max_distance_from_cyclist": "4kph"})
-    assert message(e) == ("--set max_distance_from_cyclist=4kph: '4kph' is a speed, but this parameter is a length."
+    assert message(e) == ("overrides['max_distance_from_cyclist']='4kph': '4kph' is a speed, but this parameter is a length."
                           "\n\nHint: use a length unit such as 'm'.")
 
 
 def test_missing_unit():
     with pytest.raises(UnitError) as e:
         resolve_scenarios(["follower_vehicle"], {"same_road_limit": "10"})
-    assert message(e) == ("--set same_road_limit=10: '10' has no unit; a time needs one.\n\n"
+    assert message(e) == ("overrides['same_road_limit']='10': '10' has no unit; a time needs one.\n\n"
                           "Hint: write it with a unit, e.g. \"10 s\".")
 
 
@@ -41,7 +41,7 @@ def test_unknown_unit():
 def test_unknown_parameter_suggests_the_close_one():
     with pytest.raises(ScenarioError) as e:
         resolve_scenarios(["follower_vehicle"], {"min_scenario_duraton": "2s"})
-    assert message(e) == ("--set min_scenario_duraton=2s: no scenario of this run has a parameter "
+    assert message(e) == ("overrides['min_scenario_duraton']='2s': no scenario of this run has a parameter "
                           "'min_scenario_duraton'. Did you mean 'min_scenario_duration'?\n\n"
                           "Hint: `logiq-sql scenarios` lists every parameter.")
 
@@ -49,7 +49,7 @@ def test_unknown_parameter_suggests_the_close_one():
 def test_unknown_kind():
     with pytest.raises(ScenarioError) as e:
         resolve_scenarios(["follower_vehicle"], {"kinds": "vehicle,trucks"})
-    assert message(e).startswith("--set kinds=vehicle,trucks: 'trucks' is not an evaluation_object_kind. "
+    assert message(e).startswith("overrides['kinds']='vehicle,trucks': 'trucks' is not an evaluation_object_kind. "
                                  "Did you mean 'truck'?")
 
 

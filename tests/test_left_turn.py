@@ -34,7 +34,7 @@ def oncoming_s(t: np.ndarray, enters_at: float = 5.0) -> np.ndarray:
 def base(tmp_path_factory):
     path = make_junction_db(tmp_path_factory.mktemp("lt"), [
         drive("ego", T, ego_s(T), "S_left", is_ego=True), drive("car", T, oncoming_s(T), "N_straight")])
-    result = match(path, [SCENARIO], keep=True)  # keep: passages and encroachments are read below
+    result = match(path, scenarios=[SCENARIO], keep=True)  # keep: passages and encroachments are read below
     return path, result
 
 
@@ -108,7 +108,7 @@ def test_red_light_no_light_and_no_yield_do_not_match_and_explain_says_why(tmp_p
         car = oncoming_s(T, enters_at=12.0) if name == "ego_first" else oncoming_s(T)
         path = make_junction_db(tmp_path / name, [drive("ego", T, s, "S_left", is_ego=True),
                                                   drive("car", T, car, "N_straight")], **kwargs)
-        assert match(path, [SCENARIO]).matches.is_empty(), name
+        assert match(path, scenarios=[SCENARIO]).matches.is_empty(), name
         found = explain(path, SCENARIO, "j1", "ego", actor="car")
         row = found.pairs.row(0, named=True)
         assert row["phases_reached"] < 4 and row["failed_phase"] == "stop_in_green_light", name
@@ -222,7 +222,7 @@ def test_a_left_turner_waiting_clear_of_the_oncoming_lane_yields(tmp_path):
     not the area's projection on the centre line, which on the arc runs ahead of the box's front corner."""
     path = make_junction_db(tmp_path, [drive("ego", T, creeping_ego_s(T), "S_left", is_ego=True),
                                        drive("car", T, oncoming_s(T, enters_at=9.0), "N_straight")])
-    result = match(path, [SCENARIO], keep=True)
+    result = match(path, scenarios=[SCENARIO], keep=True)
     with duckdb.connect(str(path), read_only=True) as con:
         enc = con.sql("select * from encroachments").pl().row(0, named=True)
         waiting = con.sql("select x_m, y_m, heading_rad from tracks where actor_id = 'ego' and frame = 100").fetchall()
@@ -247,7 +247,7 @@ def test_an_oncoming_car_s_jitter_does_not_widen_its_path(tmp_path):
     jittered = make_junction_db(tmp_path / "jitter", [ego, car.with_columns(pl.col("x_m") + zigzag)])
     got = {}
     for name, path in (("clean", clean), ("jitter", jittered)):
-        result = match(path, [SCENARIO], keep=True)
+        result = match(path, scenarios=[SCENARIO], keep=True)
         with duckdb.connect(str(path), read_only=True) as con:
             got[name] = con.execute("select ego_occupancy_from_s_m from encroachments").fetchone()[0]
         assert result.matches.select("actor_id").rows() == [("car",)], name

@@ -34,13 +34,13 @@ TABLES = ("phase_frames", "passages", "tracks")
 def ngsim(tmp_path_factory):
     db = tmp_path_factory.mktemp("ngsim_lt") / "ngsim.duckdb"
     ingest("commonroad", [LANKER, PEACH], db)
-    return db, match(db, [SCENARIO], ego="all"), left_turn_frames(db, "all", tables=TABLES)
+    return db, match(db, scenarios=[SCENARIO], ego="all"), left_turn_frames(db, "all", tables=TABLES)
 
 
 @pytest.fixture(scope="module")
 def av2(tmp_path_factory, ingested):
     db = ingested(tmp_path_factory.mktemp("av2_lt") / "av2.duckdb", "av2", [DATA / "av2"])
-    return db, match(db, [SCENARIO]), left_turn_frames(db, "recorded", tables=TABLES)
+    return db, match(db, scenarios=[SCENARIO]), left_turn_frames(db, "recorded", tables=TABLES)
 
 
 def test_ngsim_junction_entries_and_exits_agree_with_the_junction_polygons(ngsim):

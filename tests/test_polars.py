@@ -151,7 +151,7 @@ def test_engine_polars_stops_before_running_and_names_the_query(drives, monkeypa
     portable; a scenario of one's own may have one) stops the run before anything runs, naming the file."""
     _, sumo = drives
     monkeypatch.setitem(POLARS_UNSUPPORTED, "phases/unprotected_left_turn_frames.sql", "unsupported function 'x'")
-    with pytest.raises(EngineError, match=r"--engine polars: queries/phases/unprotected_left_turn_frames\.sql cannot "
+    with pytest.raises(EngineError, match=r"engine='polars': queries/phases/unprotected_left_turn_frames\.sql cannot "
                                           r"run on Polars SQL: unsupported function 'x'"):
         match(sumo, scenarios=[LEFT_TURN], engine="polars")
 
@@ -181,7 +181,7 @@ def test_cli_engine_polars_is_a_clear_error(drives, capsys, monkeypatch):
     assert main(["match", "--db", str(sumo), "--engine", "polars", "--scenario", LEFT_TURN, "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "--engine polars: queries/phases/unprotected_left_turn_frames.sql cannot run on Polars SQL" in err
-    assert "--engine duckdb or spark" in err
+    assert "Run this scenario on the duckdb or spark engine" in err
 
 
 def test_select_drives_narrows_the_per_drive_tables_to_the_batch(drives):

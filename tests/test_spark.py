@@ -252,9 +252,9 @@ def test_rendered_spark_sql_binds_its_parameters_and_parses(spark):
         # must parse, and every step of it is analysed on its own by test_every_query_analyses_on_spark, as
         # match --engine spark runs it.
         assert spark._jsparkSession.sessionState().sqlParser().parsePlan(text) is not None
-        assert "run it step by step" in render(s.name, dict(s.overrides), engine="spark")
-        printed = render(s.name, {k: v for k, v in s.overrides.items()}, engine="spark")
+        assert "run it step by step" in render(s.name, overrides=dict(s.overrides), engine="spark")
+        printed = render(s.name, overrides={k: v for k, v in s.overrides.items()}, engine="spark")
         assert printed.endswith(text + "\n")
         assert all(f"-- :{name} = " in printed for name in args)
-    cyclist = render("cyclist_close_to_moving_sut", {"max_distance_from_cyclist": "6m"}, engine="spark")
+    cyclist = render("cyclist_close_to_moving_sut", overrides={"max_distance_from_cyclist": "6m"}, engine="spark")
     assert "-- :max_distance_from_cyclist_m = 6.0\n" in cyclist

@@ -79,7 +79,7 @@ def test_rendered_sql_reruns_to_the_same_matches(tmp_path):
             "drive_id", "ego_id", "actor_id", "start_frame", "end_frame").sort("actor_id", "start_frame")
         assert expected.height > 0
         with duckdb.connect(str(db)) as con:  # as an analyst would: the printed text, run as it is
-            result = con.execute(render(scenario, overrides))
+            result = con.execute(render(scenario, overrides=overrides))
             rows = pl.DataFrame(result.fetchall(), schema=[d[0] for d in result.description], orient="row")
         got = rows.select("drive_id", "ego_id", "actor_id", "start_frame", "end_frame").sort("actor_id", "start_frame")
         assert got.equals(expected), scenario
