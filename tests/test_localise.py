@@ -15,13 +15,13 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from benchmarks.shapely_lanes import ShapelyLanes
 from logiq_sql import localise
 from logiq_sql.localise import LaneIndex, locate
 from logiq_sql.readers.av2 import read_av2
 from logiq_sql.readers.commonroad import read_commonroad
 from logiq_sql.readers.scenarionet import read_scenarionet
 from logiq_sql.readers.sumo import read_sumo
-from benchmarks.shapely_lanes import ShapelyLanes
 
 DATA = Path(__file__).parent / "data"
 SCENE = DATA / "nuscenes_mini_scenarionet/sd_nuscenes_v1.0-mini_scene-0061.pkl"
