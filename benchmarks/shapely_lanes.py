@@ -11,6 +11,7 @@ import polars as pl
 import shapely
 
 from logiq_sql import schema
+from logiq_sql.localise import STATIC_KINDS
 
 
 class _Geometry:
@@ -88,3 +89,17 @@ class ShapelyLanes:
         lane_heading = self.direction(lane, s)
         diff = np.arctan2(np.sin(heading[row] - lane_heading), np.cos(heading[row] - lane_heading))
         return row, lane, dist, diff
+
+
+def shapely_locate(tracks: pl.DataFrame, lanes: pl.DataFrame) -> pl.DataFrame:
+    """Rows of ``track_lanes`` for ``tracks`` (drives on one map) against ``lanes`` (that map), as ingest stored
+    them with this look-up (one thread)."""
+    moving = tracks.filter(~pl.col("kind").is_in(STATIC_KINDS)) if "kind" in tracks.columns else tracks
+    if moving.is_empty() or lanes.is_empty():
+        return schema.empty(schema.TRACK_LANES)
+    index = ShapelyLanes(lanes)
+    row, lane, dist, diff = index.locate(moving["x_m"].to_numpy(), moving["y_m"].to_numpy(),
+                                         moving["heading_rad"].to_numpy())
+    return moving.select(pl.col("drive_id", "actor_id", "frame").gather(row)).with_columns(
+        lane_id=index.lane_ids.gather(lane), dist_m=pl.Series(dist), heading_diff_rad=pl.Series(diff),
+    ).cast(schema.TRACK_LANES.polars_schema)
