@@ -62,6 +62,28 @@ def _runs(owner: np.ndarray, n_lanes: int, ax, ay, bx, by):
     return bounds, np.stack(box), lane_runs
 
 
+def _probe() -> int:
+    return 0
+
+
+def _cache_writable() -> bool:
+    """Whether numba can cache machine code here: beside the module, in NUMBA_CACHE_DIR or in the user's cache
+    (not, e.g., on an executor with a zipped package and no writable home)."""
+    try:
+        return numba.njit(cache=True)(_probe)() == 0
+    except Exception:  # numba raises OSError, RuntimeError or its own errors when no cache can be written
+        return False
+
+
+_CACHE = _cache_writable()
+
+
+def _compiled(fn):
+    """``fn`` compiled without the GIL and with IEEE division (x / 0 is inf or NaN, as in GEOS), its machine code
+    cached where it can be (else compiled on each start)."""
+    return numba.njit(cache=_CACHE, nogil=True, error_model="numpy")(fn)
+
+
 class LaneIndex:
     """The lanes of one map as arrays: grown boxes, boundary edges and centre-line segments in runs, the
     arc-length keys of the centre lines, and the grid of cells listing the lanes whose grown box meets each."""
@@ -148,7 +170,7 @@ class LaneIndex:
         return i[0], i[1], f[0], f[1]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _point_segment(px, py, ax, ay, bx, by):
     """GEOS's Distance::pointToSegment, operation for operation."""
     if ax == bx and ay == by:
@@ -163,7 +185,7 @@ def _point_segment(px, py, ax, ay, bx, by):
     return abs(s) * math.sqrt(len2)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _box_distance(px, py, box, k):
     """Distance from a point to the k-th box (0 inside): no piece in the box is nearer."""
     dx = max(box[0, k] - px, 0.0, px - box[2, k])
@@ -171,7 +193,7 @@ def _box_distance(px, py, box, k):
     return math.sqrt(dx * dx + dy * dy)
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _inside(px, py, lane, edges, edge_runs, edge_box, lane_edge_runs):
     """The even-odd rule over the lane's edges: crossings of the ray from the point towards +x."""
     odd = False
@@ -187,7 +209,7 @@ def _inside(px, py, lane, edges, edge_runs, edge_box, lane_edge_runs):
     return odd
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _edge_distance(px, py, lane, reach, edges, edge_runs, edge_box, lane_edge_runs):
     """The least distance to the lane's edges, exact where it is at most ``reach`` (else some value above it)."""
     best = np.inf
@@ -199,7 +221,7 @@ def _edge_distance(px, py, lane, reach, edges, edge_runs, edge_box, lane_edge_ru
     return best
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _arc_length(px, py, lane, segments, seg_runs, seg_box, lane_seg_runs):
     """GEOS's LengthIndexOfPoint: the arc length at the first centre-line segment of least distance."""
     best, measure = np.inf, 0.0
@@ -228,7 +250,7 @@ def _arc_length(px, py, lane, segments, seg_runs, seg_box, lane_seg_runs):
     return measure
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _direction(lane, s, key, span, coords, first, last):
     """Heading of the centre-line segment of ``lane`` whose keys hold arc length ``s`` (searchsorted, side right)."""
     t = s + lane * span
@@ -244,7 +266,7 @@ def _direction(lane, s, key, span, coords, first, last):
     return math.atan2(coords[j, 1] - coords[i, 1], coords[j, 0] - coords[i, 0])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")  # IEEE division, as in GEOS
+@_compiled
 def _locate(x, y, heading, start, reach, grid, cell_first, cell_lanes, box, open_box, edges, edge_runs, edge_box,
             lane_edge_runs, segments, seg_runs, seg_box, lane_seg_runs, key, span, coords, first,
             last, out_i, out_f):

@@ -194,3 +194,27 @@ def test_chunks_threads_a_pickled_index_and_a_full_buffer_give_one_calls_rows(mo
     chunked = locate(tracks, drive.lanes, pickle.loads(pickle.dumps(LaneIndex(drive.lanes))))
     key = ["drive_id", "actor_id", "frame", "lane_id"]
     assert chunked.sort(key).equals(one_call.sort(key)) and one_call.height > 0
+
+
+def test_the_look_up_runs_from_a_zipped_package_with_nowhere_to_cache(tmp_path):
+    """As on a Spark executor given the package as a .zip and no writable home: compiled afresh, same pairs."""
+    import os
+    import subprocess
+    import sys
+    import zipfile
+
+    package = Path(localise.__file__).parent
+    with zipfile.ZipFile(tmp_path / "logiq_sql.zip", "w") as z:
+        for f in package.rglob("*.py"):
+            z.write(f, f.relative_to(package.parent))
+    script = ("import numpy as np, polars as pl\nfrom logiq_sql import localise\n"
+              "lanes = pl.DataFrame({'lane_id': ['a'], 'polygon_wkt': ['POLYGON ((0 0, 10 0, 10 3, 0 3, 0 0))'],"
+              " 'centerline_wkt': ['LINESTRING (0 1.5, 10 1.5)']})\n"
+              "row, lane, dist, diff = localise.LaneIndex(lanes).locate(np.array([1.0, 12.0]), np.array([1.0, 1.0]),"
+              " np.array([0.5, 0.0]))\nprint(localise.__file__, localise._CACHE, row.tolist(), dist.tolist(), diff.tolist())")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA")}
+    env.update(PYTHONPATH=str(tmp_path / "logiq_sql.zip"), HOME="/proc")
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(tmp_path / "logiq_sql.zip/logiq_sql/localise.py"), "False", "[0,", "1]",
+                                  "[0.0,", "2.0]", "[0.5,", "0.0]"]
