@@ -11,7 +11,7 @@ import polars as pl
 import shapely
 
 from logiq_sql import schema
-from logiq_sql.localise import STATIC_KINDS
+from logiq_sql.localise import STATIC_KINDS, arc_length_keys
 
 
 class _Geometry:
@@ -46,17 +46,7 @@ class ShapelyLanes:
         self.wkb = {name: shapely.to_wkb(g) for name, g in
                     (("polygons", polygons), ("reach", reach), ("boxes", boxes), ("lines", lines))}
         self.local = threading.local()
-        coords, owner = shapely.get_coordinates(lines, return_index=True)
-        cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
-        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-        arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))  # restarts on each line
-        self.span = float(arc.max() if len(arc) else 0.0) + 1.0
-        self.key = arc + owner * self.span  # sorted: lane by lane, arc length within
-        self.coords, self.owner = coords, owner
-        self.first = np.full(len(polygons), -1)
-        self.last = np.full(len(polygons), -1)
-        self.first[owner[starts]] = starts
-        self.last[owner[np.r_[starts[1:] - 1, len(coords) - 1]]] = np.r_[starts[1:] - 1, len(coords) - 1]
+        self.coords, self.owner, self.span, self.key, self.first, self.last = arc_length_keys(lines)
 
     def direction(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Heading of the centre-line segment of ``lane`` that contains arc length ``s``."""

@@ -62,6 +62,21 @@ def _runs(owner: np.ndarray, n_lanes: int, ax, ay, bx, by):
     return bounds, np.stack(box), lane_runs
 
 
+def arc_length_keys(lines: np.ndarray):
+    """The centre lines' vertices and, for the direction look-up, their cumulated lengths as sorted keys: (vertex
+    coordinates, each vertex's lane, span, keys = arc length + lane * span, each lane's first and last vertex or
+    -1)."""
+    coords, owner = shapely.get_coordinates(lines, return_index=True)
+    cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
+    starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+    arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))  # restarts on each line
+    span = float(arc.max() if len(arc) else 0.0) + 1.0
+    first, last = np.full(len(lines), -1), np.full(len(lines), -1)
+    first[owner[starts]] = starts
+    last[owner[np.r_[starts[1:] - 1, len(coords) - 1]]] = np.r_[starts[1:] - 1, len(coords) - 1]
+    return coords, owner, span, arc + owner * span, first, last
+
+
 def _probe() -> int:
     return 0
 
@@ -108,17 +123,8 @@ class LaneIndex:
         self.edge_runs, self.edge_box, self.lane_edge_runs = _runs(ring_lane[ri[k]], n, *self.edges)
 
         # centre lines: vertices, the arc-length keys of the direction look-up, segments with GEOS's start measures
-        coords, owner = shapely.get_coordinates(lines, return_index=True)
-        cum = np.cumsum(np.r_[0.0, np.hypot(*np.diff(coords, axis=0).T)])
-        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-        arc = cum - np.repeat(cum[starts], np.diff(np.r_[starts, len(coords)]))  # restarts on each line
-        self.span = float(arc.max() if len(arc) else 0.0) + 1.0
-        self.key = arc + owner * self.span  # sorted: lane by lane, arc length within
-        self.coords, self.owner = coords, owner
-        self.first = np.full(n, -1)
-        self.last = np.full(n, -1)
-        self.first[owner[starts]] = starts
-        self.last[owner[np.r_[starts[1:] - 1, len(coords) - 1]]] = np.r_[starts[1:] - 1, len(coords) - 1]
+        self.coords, self.owner, self.span, self.key, self.first, self.last = arc_length_keys(lines)
+        coords, owner = self.coords, self.owner
         s = np.flatnonzero(owner[1:] == owner[:-1])  # segment s runs from vertex s to s + 1
         seg_lane = owner[s]
         d = coords[s + 1] - coords[s]
