@@ -68,7 +68,7 @@ def test_the_look_up_gives_shapelys_pairs_on_every_bundled_map():
         if tracks.height > 30_000:  # the SUMO runs: every 4th frame keeps the test short
             tracks = tracks.filter(pl.col("frame") % 4 == 0)
         x, y = tracks["x_m"].to_numpy(), tracks["y_m"].to_numpy()
-        # the rows as recorded, and as many again thrown up to 5 m off them (between lanes, off the map)
+        # the rows as recorded, and as many again moved off them (normal, 2.5 m): between lanes, off the map
         x = np.r_[x, x + rng.normal(0, 2.5, len(x))]
         y = np.r_[y, y + rng.normal(0, 2.5, len(y))]
         heading = np.r_[tracks["heading_rad"].to_numpy(), rng.uniform(-np.pi, np.pi, len(tracks))]
