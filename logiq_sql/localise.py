@@ -7,8 +7,9 @@ Scenarios then pick lanes with their own ``lane_calculation_tolerance_length`` i
 (``queries/relations/actor_lanes.sql``). docs/localisation.md gives the formulas.
 
 The numbers are those of GEOS (through shapely) computed the same way, operation for operation:
-- candidates: the lanes whose bounding box grown by the range holds the point (both ends included), found
-  through a uniform grid of cells that lists every lane whose grown box meets the cell;
+- candidates: the lanes whose bounding box grown by the range holds the point (both ends included; strictly
+  inside for an invalid polygon, as shapely's reach test had it), found through a uniform grid of cells that
+  lists every lane whose grown box meets the cell;
 - inside: the even-odd rule over every ring's edges (a ray towards +x), as GEOS's point-in-area locator counts
   crossings; only a point within rounding of the boundary can be judged otherwise, and there the distance is 0 up
   to that rounding;
