@@ -48,6 +48,16 @@ def picks(db) -> list[str]:
                 for s, d in REPLAYS]
 
 
+def special_picks(db) -> dict[str, str]:
+    """A match with bridged frames and one whose actor's track ends before the replay does (first by match_id)."""
+    with connect(db, read_only=True) as con:
+        ids = [r[0] for r in con.execute("select match_id from matches order by match_id").fetchall()]
+        scenes, _ = replay.scenes(con, ids)
+    bridged = next(s["id"] for s in scenes if s["b"])
+    ends = next(s["id"] for s in scenes if s["a"]["x"][-1] is None and any(v is not None for v in s["a"]["x"]))
+    return {"bridged": bridged, "actor_ends": ends}
+
+
 def overlaps(boxes: list[tuple[str, float, float, float, float]]) -> list[tuple[str, str]]:
     """Pairs of (text, x, y, w, h) boxes that overlap by more than TOUCH_PX both ways."""
     out = []
@@ -174,7 +184,9 @@ def test_the_report_and_its_replays_read_at_a_glance_in_chromium(db, shots, tmp_
         page.locator(".chart").first.screenshot(path=str(shots / "report_coverage.png"))
         page.locator("h2", has_text="KPI distributions").scroll_into_view_if_needed()
         page.screenshot(path=str(shots / "report_kpis.png"))
-        for (scenario, drive), match_id in zip(REPLAYS, picks(db), strict=True):
+        special = special_picks(db)
+        cases = [*zip(REPLAYS, picks(db), strict=True), *(((why, ""), m) for why, m in special.items())]
+        for (scenario, drive), match_id in cases:
             k = page.evaluate(f"Array.from(document.querySelectorAll('#matches tbody tr')).findIndex("
                               f"r => r.textContent.includes('{match_id}'))")
             page.locator("#matches tbody tr").nth(k).locator("button[data-replay]").click()
@@ -199,8 +211,13 @@ def test_the_report_and_its_replays_read_at_a_glance_in_chromium(db, shots, tmp_
             words = {t["text"] for st in states for t in st["texts"]}
             assert {"x (m)", "y (m)", replay.TIME_LABEL, "gap (m)", "headway, TTC (s)", "speed (mph)"} <= words
             assert not any(w.endswith("n/a") for w in words)
+            if match_id == special["bridged"]:
+                assert "bridged frame" in words
+            if match_id == special["actor_ends"]:
+                assert any(w.startswith("actor track ends at t=") for w in words)
             assert "ego ego" not in page.text_content("#replay-title")
-            page.evaluate(f"window.logiqReplay.show({int(n * 0.6)})")
+            at = n - 1 if match_id == special["actor_ends"] else int(n * 0.6)
+            page.evaluate(f"window.logiqReplay.show({at})")
             page.locator("#replay").screenshot(path=str(shots / f"report_replay_{scenario}_{drive}.png"))
             page.click("#replay-close")
         browser.close()
