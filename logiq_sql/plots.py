@@ -124,8 +124,8 @@ def birds_eye(db: str | Path | duckdb.DuckDBPyConnection, match_id: str, margin_
     ax.set_xlim(box.bounds[0], box.bounds[2])
     ax.set_ylim(box.bounds[1], box.bounds[3])
     ax.set_aspect("equal")
-    ax.set_xlabel("x_m")
-    ax.set_ylabel("y_m")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
     handles, labels = ax.get_legend_handles_labels()
     if not junctions.is_empty():
         handles.append(Patch(facecolor="#f5c16c", edgecolor="#b07d1a", alpha=0.45))

@@ -267,7 +267,7 @@ def _maps(con: duckdb.DuckDBPyConnection, encoded: list[dict]) -> dict[str, dict
         if s["map"] is None:
             continue
         x, y = _undelta(s["e"]["x"]) * QUANTUM_M + s["origin"][0], _undelta(s["e"]["y"]) * QUANTUM_M + s["origin"][1]
-        r = s["view_m"] * 1.5
+        r = s["view_m"] * 2  # the view is centred within view_m of the ego (between it and the actor)
         boxes.setdefault(s["map"], []).append(shapely.box(np.nanmin(x) - r, np.nanmin(y) - r, np.nanmax(x) + r,
                                                           np.nanmax(y) + r))
     out = {}
