@@ -214,12 +214,16 @@
     return state;
   }
 
-  // a row of coloured swatches and names from x0, vertically centred in the part; [name, colour, mark]
+  // rows of coloured swatches and names from x0 in the part, wrapped before the canvas's edge; [name, colour, mark]
   function key(part, entries) {
     const [x0, y0, , h] = rect(part);
-    let x = x0 + 8;
-    const y = y0 + h / 2;
-    entries.forEach(([name, colour, mark]) => {
+    ctx.font = SMALL;
+    const room = canvas.width - 8, widths = entries.map(([name]) => 16 + ctx.measureText(name).width + 14);
+    const rows = widths.reduce((acc, w) => (acc.x + w > room ? { x: x0 + 8 + w, n: acc.n + 1 } : { x: acc.x + w, n: acc.n }),
+      { x: x0 + 8, n: 1 }).n;
+    let x = x0 + 8, y = y0 + h / 2 - (rows - 1) * 7;
+    entries.forEach(([name, colour, mark], k) => {
+      if (x + widths[k] > room && x > x0 + 8) { x = x0 + 8; y += 14; }
       ctx.fillStyle = colour;
       if (mark === 'bar') ctx.fillRect(x + 4, y - 6, 2, 12);
       else if (mark === 'arrow') {

@@ -546,7 +546,10 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
     if s["hw"]["lo"] is not None:
         phase_keys.append(Patch(facecolor=STYLE["band"], label="headway range tested"))
     x, y, w, h = LAYOUT["phase_key"]
-    fig.legend(handles=phase_keys, loc="center left", bbox_to_anchor=(x, 1 - y - h / 2), ncols=len(phase_keys),
+    # one row while the names fit across the figure (about 190 characters at this size), else two
+    chars = sum(len(p.get_label()) + 6 for p in phase_keys)
+    fig.legend(handles=phase_keys, loc="center left", bbox_to_anchor=(x, 1 - y - h / 2),
+               ncols=len(phase_keys) if chars <= 190 else -(-len(phase_keys) // 2),
                fontsize=6.5, frameon=False, handlelength=1.2, columnspacing=1.0)
     cursors = [tl.axvline(t[0], color="black", linewidth=2)]
 

@@ -122,6 +122,29 @@ def test_the_replay_figure_reads_at_a_glance(db, shots):
         assert s["hw"]["column"] == expected
 
 
+def test_every_match_keeps_both_boxes_in_view(db):
+    """Over every bundled match (each scenario, NGSIM, nuScenes, the SUMO junction): at every frame of the match the
+    ego's and the actor's box corners are inside the view the renderers draw (view_centres, view_m, the map's
+    aspect)."""
+    with connect(db, read_only=True) as con:
+        ids = [r[0] for r in con.execute("select match_id from matches order by match_id").fetchall()]
+        scenes, _ = replay.scenes(con, ids)
+    map_w, map_h = (replay.LAYOUT["map"][2] * replay.LAYOUT["width"], replay.LAYOUT["map"][3] * replay.LAYOUT["height"])
+    checked = 0
+    for s in scenes:
+        d = replay.decode(s)
+        centres, half_w = replay.view_centres(d), s["view_m"]
+        half_h = half_w * map_h / map_w
+        for i in np.flatnonzero((d["t_s"] >= s["start_s"] - 1e-6) & (d["t_s"] <= s["end_s"] + 1e-6)):
+            for a in (d["ego"], d["actor"]):
+                if np.isnan(a["x"][i]):
+                    continue
+                xy = replay.box_corners(a["x"][i], a["y"][i], a["h"][i], a["l"], a["w"]) - centres[i]
+                assert (np.abs(xy[:, 0]) <= half_w).all() and (np.abs(xy[:, 1]) <= half_h).all(), (s["id"], i)
+                checked += 1
+    assert len(scenes) == len(ids) and checked > 10_000
+
+
 def test_the_follower_headway_is_the_one_the_phase_tests(db):
     """The headway panel of a follower match is follow_gap_m / actor speed (phases/follower_vehicle.sql), read
     here from the kept relations and tracks, and inside the follower phase every frame either holds the tested
