@@ -4,8 +4,10 @@
 headway and TTC from ``queries/relations/relations.sql`` itself) and encodes each match as a compact dict:
 positions quantised to ``QUANTUM_M`` and delta-coded, headings in centiradians, one list per actor. The report
 embeds that dict as gzip + base64 and decodes it in the browser only when the match is opened (``REPLAY_JS``);
-``animation`` decodes the very same dict with ``decode`` and draws it with matplotlib. ``LAYOUT`` and ``STYLE``
-(panels, colours, what is faint) are read by both renderers, so the two pictures agree.
+``animation`` decodes the very same dict with ``decode`` and draws it with matplotlib. ``LAYOUT``, ``STYLE``,
+``KEY``, ``SERIES`` and ``PANELS`` (parts, colours, the key, units) are read by both renderers, and the scene
+carries what both show (titles, the view's size, the tested headway and its range, the bridged frames, the
+panels' y-ranges), so the two pictures agree. docs/replay.md says how to read them.
 """
 
 from __future__ import annotations
