@@ -42,7 +42,7 @@ MPH_PER_MPS = 1 / units.factor("mph")  # speeds are shown in mph, the unit of th
 CAP_S = 10.0  # the headway and TTC axis ends here; larger values are drawn on the top edge (tick label ">=10")
 
 # the values plotted beside the map: (column, label, unit, scale of the stored integers). headway_s is the headway
-# the scenario's phase tests (SCENE_HEADWAY), so its frames outside the tested range are the bridged ones
+# the scenario's phases test (_headway_tests), so its frames outside the tested range are bridged ones
 SERIES = (("lon_gap_m", "gap", "m", 0.1), ("headway_s", "headway", "s", 0.1), ("ttc_s", "TTC", "s", 0.1),
           ("ego_speed_mph", "ego", "mph", 0.1), ("actor_speed_mph", "actor", "mph", 0.1))
 # chart panels: axis label with unit, the series sharing it, the top of its axis at most
@@ -137,7 +137,8 @@ def _frames(con: duckdb.DuckDBPyConnection, ids: list[str]) -> tuple[pl.DataFram
 
 def _headway_tests(con: duckdb.DuckDBPyConnection, windows: pl.DataFrame) -> pl.DataFrame:
     """Per (scenario, params_hash) of the replayed matches: the headway column its phase tests (the value of the
-    scenario's headway_in_range condition), the index of that phase and the range bound in that run."""
+    scenario's headway_in_range conditions; the built-in scenarios test one column), the indexes of the phases that
+    test it and the range bound in that run."""
     bound = dict(con.execute("select params_hash, any_value(params_json) from match_runs where params_hash in "
                              "(select params_hash from replay_windows) group by 1").fetchall())
     rows = []
@@ -150,11 +151,11 @@ def _headway_tests(con: duckdb.DuckDBPyConnection, windows: pl.DataFrame) -> pl.
                   if c.name == "headway_in_range"]
         if tested:
             params = json.loads(bound[params_hash]) if params_hash in bound else scenario.bindings()
-            rows.append((name, params_hash, tested[0][1], tested[0][0],
+            rows.append((name, params_hash, tested[0][1], [k for k, _ in tested],
                          params.get("min_distance_from_sut_in_time_units_s"),
                          params.get("max_distance_from_sut_in_time_units_s")))
     return pl.DataFrame(rows, orient="row", schema={"scenario": pl.String, "params_hash": pl.String,
-                                                    "hw_column": pl.String, "hw_phase": pl.Int64,
+                                                    "hw_column": pl.String, "hw_phases": pl.List(pl.Int64),
                                                     "hw_lo": pl.Float64, "hw_hi": pl.Float64})
 
 
@@ -162,11 +163,15 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
             pet: dict[str, float | None], headway: pl.DataFrame) -> list[dict]:
     """One compact scene dict per match (vectorised per column; the loop is over matches)."""
     tested = (windows.select("match_id", "scenario", "params_hash", "start_frame", "end_frame")
-              .join(headway, on=["scenario", "params_hash"], how="left")
-              .join(phases.select("match_id", pl.col("phase_index").alias("hw_phase"),
-                                  pl.col("start_frame").alias("hw_from"), pl.col("end_frame").alias("hw_to")),
-                    on=["match_id", "hw_phase"], how="left"))
-    frames = frames.join(tested, on="match_id", how="left").with_columns(
+              .join(headway, on=["scenario", "params_hash"], how="left"))
+    # the frames inside a phase that tests the headway
+    spans = (tested.select("match_id", pl.col("hw_phases").alias("phase_index")).explode("phase_index")
+             .join(phases.select("match_id", "phase_index", "start_frame", "end_frame"), on=["match_id", "phase_index"]))
+    in_tested = (frames.select("match_id", "frame").join(spans, on="match_id")
+                 .filter(pl.col("frame").is_between("start_frame", "end_frame"))
+                 .select("match_id", "frame").unique().with_columns(pl.lit(True).alias("in_tested")))
+    frames = (frames.join(tested.drop("hw_phases"), on="match_id", how="left")
+              .join(in_tested, on=["match_id", "frame"], how="left")).with_columns(
         pl.int_range(pl.len()).over("match_id").alias("i"),
         pl.col("ego_x_m").first().over("match_id").round().alias("ox"),
         pl.col("ego_y_m").first().over("match_id").round().alias("oy"),
@@ -176,8 +181,8 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
         (pl.col("actor_speed_mps") * MPH_PER_MPS).alias("actor_speed_mph"))
     inside = pl.col("frame").is_between("start_frame", "end_frame")
     # frames of the match at which its phase cannot have held, bridged by max_gap (docs/semantics.md): the actor
-    # is not tracked, or, in the phase that tests the headway, the headway is undefined or out of its range
-    out_of_range = (pl.col("frame").is_between("hw_from", "hw_to")
+    # is not tracked, or, in a phase that tests the headway, the headway is undefined or out of its range
+    out_of_range = (pl.col("in_tested").fill_null(False)
                     & ~pl.col("headway_s").is_between("hw_lo", "hw_hi").fill_null(False))
     frames = frames.with_columns((inside & (pl.col("actor_x_m").is_null() | out_of_range.fill_null(False)))
                                  .alias("bridged"))
