@@ -161,6 +161,7 @@
 
   // round tick values between lo and hi, about `count` of them
   function ticks(lo, hi, count) {
+    if (!(hi > lo)) return [lo];
     const raw = (hi - lo) / count, p = Math.pow(10, Math.floor(Math.log10(raw)));
     const step = [1, 2, 2.5, 5, 10].map((m) => m * p).find((v) => v >= raw);
     const out = [];
