@@ -16,6 +16,7 @@ from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
 from logiq_sql.db import connect
 
@@ -170,6 +171,7 @@ def coverage_histogram(coverage: pl.DataFrame, scenario: str, item: str, ax: Axe
     ax.set_xticks(pos, labels, rotation=90, ha="center", fontsize=6)  # upright boxes: checkably apart
     ax.set_xlabel(f"value ({unit})" if unit and numeric.any() else "value", fontsize=7)
     ax.set_ylabel("matches", fontsize=7)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts: no 2.5 matches
     buckets = ~rows["special"].to_numpy()
     ax.set_title(f"{_wrapped(item)}\n{int((empty & buckets).sum())} of {int(buckets.sum())} buckets empty", fontsize=7)
     ax.tick_params(axis="y", labelsize=7)
@@ -210,6 +212,7 @@ def kpi_grid(kpis: pl.DataFrame, scenario: str, columns: int = 4, units: dict[st
         ax.set_title(f"{_wrapped(name, 30)}\n(n = {len(values)})", fontsize=7)
         ax.set_xlabel((units or {}).get(name, "value"), fontsize=7)
         ax.set_ylabel("matches", fontsize=7)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.tick_params(labelsize=6)
     for ax in axes[len(names):]:
         ax.set_visible(False)
