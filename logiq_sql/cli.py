@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 from logiq_sql.errors import DiskFullError, FileBusyError, LogiqError
@@ -606,12 +607,10 @@ def _add_harness(harness, hidden: bool = False) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from logiq_sql import __version__
-
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
         epilog=EPILOG)
-    parser.add_argument("--version", action="version", version=f"logiq-sql {__version__}")
+    parser.add_argument("--version", action="version", version=f"logiq-sql {version('logiq-sql')}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (add_ingest, add_match, add_scenarios, add_lint, add_new_scenario, add_render, add_explain, add_query,
                 add_info, add_report, add_replay, add_export, add_eval):
