@@ -23,7 +23,7 @@ EPILOG = ("Docs: README.md and docs/ in the repository. Exit codes: 0 done, 1 un
           "3 ingest done but some drives rejected, 4 another run is writing the file, 5 disk full.")
 DB_ENV = "LOGIQ_SQL_DB"  # the default of --db on every command that takes one
 # how the CLI spells the Python arguments that library errors name (logiq_sql.errors.arg)
-FLAGS = {"overrides": "--set", "drives": "--drive", "db_path": "--db", "name": "NAME"}
+FLAGS = {"overrides": "--set", "drives": "--drive", "db_path": "--db", "name": "NAME", "wait_s": "--wait"}
 QUERY_FORMATS = ("table", "csv", "json", "markdown")
 TABLE_ROWS = 40  # rows `query --format table` prints unless --limit says otherwise
 
@@ -633,10 +633,10 @@ def _run(argv: list[str]) -> int:
         print(f"logiq-sql: error: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except FileBusyError as exc:
-        print(f"logiq-sql: busy: {exc}", file=sys.stderr)
+        print(f"logiq-sql: busy: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_BUSY
     except DiskFullError as exc:
-        print(f"logiq-sql: disk full: {exc}", file=sys.stderr)
+        print(f"logiq-sql: disk full: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_DISK_FULL
 
 

@@ -25,7 +25,7 @@ import shapely
 
 from logiq_sql import units
 from logiq_sql.db import connect
-from logiq_sql.errors import InputError, ScenarioError
+from logiq_sql.errors import InputError, ScenarioError, arg
 from logiq_sql.plan import ALL_KINDS_CSV, DEFAULT_MIN_CLOSING_SPEED_MPS
 from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
 from logiq_sql.scenario import load_scenario
@@ -347,7 +347,7 @@ def scene(db: str | Path | duckdb.DuckDBPyConnection, match_id: str) -> dict:
 
 def _open(db: str | Path) -> duckdb.DuckDBPyConnection:
     if not Path(db).is_file():
-        raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
+        raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
     return connect(db, read_only=True)
 
 
@@ -629,7 +629,7 @@ def save(db: str | Path, match_id: str, out: str | Path, step: int | None = None
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4"):
-        raise InputError(f"--out {out}: write a .gif or an .mp4 file.")
+        raise InputError(f"{arg('out', out)}: write a .gif or an .mp4 file.")
     s = scene(db, match_id)
     step = step or _step(len(s["f"]), MAX_FRAMES)
     anim = animation(s, step=step)

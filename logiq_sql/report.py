@@ -20,7 +20,7 @@ import polars as pl
 
 from logiq_sql import plots, replay
 from logiq_sql.db import open_for_read
-from logiq_sql.errors import InputError, ScenarioError
+from logiq_sql.errors import InputError, ScenarioError, arg
 from logiq_sql.scenario import load_scenario
 
 MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s",
@@ -101,12 +101,12 @@ def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | Non
 
 def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
-        raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
+        raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
     with open_for_read(db) as con:  # one connection: the tables and the replays are of one published state
         present = {r[0] for r in con.sql("select table_name from information_schema.tables").fetchall()}
         missing = [t for t in ("matches", "kpis", "coverage", "match_runs") if t not in present]
         if missing:
-            raise InputError(f"--db {db}: no match run recorded yet ({', '.join(missing)} missing): run "
+            raise InputError(f"{arg('db', db)}: no match run recorded yet ({', '.join(missing)} missing): run "
                              f"`logiq-sql match --db {db}` first, then the report.")
         data = {
             "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
