@@ -1,5 +1,5 @@
 """Map localisation as a relational join (issue 15): EXACT BUT NOT FASTER, SO NOT WIRED IN. Ingest localised with
-shapely then (``benchmarks/shapely_lanes.py``, the reference here; since issue 33 ``logiq_sql/localise.py``
+shapely then (``benchmarks/shapely_lanes.py``, the reference here; since issue 33 ``logiq_sql/ingestion/localise.py``
 computes the same rows compiled); this module and ``benchmarks/localise_join_sql/`` are the measured alternative,
 kept for a later attempt. On the base drives (1,305,714 rows, 103 maps) it gave the same
 3,253,293 rows and cost about 22 CPU s against shapely's 10 (``benchmarks/README.md``, section of 2026-11-26).
@@ -45,8 +45,9 @@ import polars as pl
 import shapely
 
 from benchmarks.shapely_lanes import shapely_locate as reference_locate
-from logiq_sql import db, schema
-from logiq_sql.localise import LaneIndex
+from logiq_sql.core import schema
+from logiq_sql.ingestion.localise import LaneIndex
+from logiq_sql.storage import db
 
 CELL_M = 1.0  # a power of two: x * (1 / CELL_M) and its floor are exact, in numpy as in SQL
 SLACK_M = 1e-6  # every pruning distance is widened by this: pieces a rounding error could need are kept

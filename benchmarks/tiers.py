@@ -18,7 +18,7 @@ the drive has one (nuScenes, Argoverse 2).
 Measured in one process, in this order: the floor (a plain DuckDB scan and group-by over the tier's track
 columns), ingest of the replicated Parquet (kinematics SQL, shapely localisation, writing the file), matching
 every scenario with KPIs and coverage, the floor again (the faster floor is used). Each stage's wall time, rows
-per second and peak resident memory come from logiq_sql.timing. At tier S the per-pair baseline
+per second and peak resident memory come from logiq_sql.core.timing. At tier S the per-pair baseline
 (benchmarks/baseline.py) runs on the same file, is checked to give the same matches, and is timed against the
 SQL matcher on the same two scenarios. Written: benchmarks/results/<TIER>.json and <TIER>.md.
 """
@@ -41,11 +41,11 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import schema
-from logiq_sql.db import memory_limit
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
-from logiq_sql.timing import cpu_seconds, recording
+from logiq_sql.core import schema
+from logiq_sql.core.timing import cpu_seconds, recording
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.match import match
+from logiq_sql.storage.db import memory_limit
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"

@@ -8,7 +8,7 @@ import duckdb
 import pytest
 
 from logiq_sql.cli import main
-from logiq_sql.db import connect, docs_markdown
+from logiq_sql.storage.db import connect, docs_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 

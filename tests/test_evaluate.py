@@ -5,10 +5,10 @@ from __future__ import annotations
 import polars as pl
 import pytest
 
-from logiq_sql import db
 from logiq_sql.cli import build_parser
-from logiq_sql.errors import InputError
+from logiq_sql.core.errors import InputError
 from logiq_sql.evaluation.evaluate import evaluate
+from logiq_sql.storage import db
 
 DT = 0.1
 
@@ -186,7 +186,7 @@ def test_cli_writes_parquet(tmp_path, capsys):
 
 def test_pooled_f1_sums_the_events_of_every_seed():
     """campaign --pool: F1 from the summed TP, FP and FN of a regime's seeds, beside its lowest run."""
-    from logiq_sql.evaluation.campaign import pooled_markdown
+    from logiq_sql.cli.campaign import pooled_markdown
 
     runs = pl.DataFrame({"scenario": ["s", "s"], "regime": ["r", "r"], "noise": ["exact", "exact"],
                          "tp": [20, 30], "fp": [0, 1], "fn": [3, 0], "f1": [40 / 43, 60 / 61]})

@@ -14,13 +14,14 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from logiq_sql import db, ingest, match
-from logiq_sql.encroachment import encroachments
+from logiq_sql import ingest, match
+from logiq_sql.core.paths import data_dir
+from logiq_sql.core.sql import query_text
 from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine, override, polars_blocker
-from logiq_sql.match import select_run_drives
-from logiq_sql.paths import data_dir
-from logiq_sql.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
-from logiq_sql.sql import query_text
+from logiq_sql.matching.encroachment import encroachments
+from logiq_sql.matching.match import select_run_drives
+from logiq_sql.spec.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
+from logiq_sql.storage import db
 
 DATA = Path(__file__).parent / "data"
 LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
@@ -167,7 +168,7 @@ def test_engine_spark_without_pyspark_says_how_to_install(monkeypatch):
 
 
 def test_render_has_no_polars_form():
-    from logiq_sql.match import render
+    from logiq_sql.matching.match import render
 
     with pytest.raises(EngineError, match="Polars SQL has no parameters"):
         render("follower_vehicle", engine="polars")
@@ -282,7 +283,7 @@ def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
     """A construct Polars SQL cannot run is a lint problem in a portable file, unless the file has a Polars
     override or the engine refuses it by name; an override must replace an existing file, bind the same
     parameters and itself run on Polars."""
-    from logiq_sql.lint import lint_tree
+    from logiq_sql.matching.lint import lint_tree
 
     root = tmp_path / "queries"
     (root / "relations").mkdir(parents=True)
