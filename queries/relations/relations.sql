@@ -9,7 +9,7 @@
 -- within metres, lane-following ones up to a 5 s headway.
 --
 -- Only actors whose kind is in relation_kinds_csv (',cyclist,') are related: the kinds some scenario of the run
--- can use (each scenario's `relation_kinds`, every kind when one leaves it unset; logiq_sql.plan.relation_kinds_csv).
+-- can use (each scenario's `relation_kinds`, every kind when one leaves it unset; logiq_sql.spec.plan.relation_kinds_csv).
 -- A run of cyclist_close_to_moving_sut alone relates cyclists only; a run with any lane-following or junction
 -- scenario relates every kind (the nearest road user ahead or behind may be of any kind), so its rows are the full
 -- relation. relations_of(drive_id, ego_id) gives every kind, whatever a run kept (docs/semantics.md).
