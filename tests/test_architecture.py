@@ -1,6 +1,8 @@
-"""The house rules of docs/architecture.md, read from the source: module-level imports inside logiq_sql form no
-cycle (imports inside functions, made to defer a heavy dependency, are not counted), and no module imports another
-module's private (`_name`) names, at any level."""
+"""The house rules of docs/architecture.md, read from the source: the package's layers (core, spec, storage,
+ingestion, engines, matching, outputs, evaluation, cli) import downwards only and the harness never imports the
+matcher (imports inside functions count); module-level imports form no cycle (imports inside functions, made to
+defer a heavy dependency, are not counted); no module imports another module's private (`_name`) names, at any
+level."""
 
 from __future__ import annotations
 
@@ -47,3 +49,47 @@ def test_no_module_imports_another_modules_private_names():
     private = [f"{name}: from {module} import {n}" for name, tree in trees.items()
                for module, names in logiq_imports(ast.walk(tree), set(trees)) for n in names if n.startswith("_")]
     assert not private, private
+
+
+# The layers of docs/architecture.md, lowest first: a module imports only from its own layer and those below it,
+# at module level or inside a function. logiq_sql/__init__.py, the front door, re-exports from any layer.
+LAYERS = ("core", "spec", "storage", "ingestion", "engines", "matching", "outputs", "evaluation", "cli")
+
+
+def layer_of(module: str) -> str:
+    return module.split(".")[1]
+
+
+def upward_imports(trees: dict[str, ast.Module]) -> list[str]:
+    found = []
+    for name, tree in trees.items():
+        if name == "logiq_sql":
+            continue
+        for module, _ in logiq_imports(ast.walk(tree), set(trees)):
+            if module != "logiq_sql" and LAYERS.index(layer_of(module)) > LAYERS.index(layer_of(name)):
+                found.append(f"{name} ({layer_of(name)}) imports {module} ({layer_of(module)})")
+    return found
+
+
+def test_every_module_sits_in_a_layer():
+    trees = package_modules()
+    assert {layer_of(name) for name in trees if name != "logiq_sql"} == set(LAYERS)
+
+
+def test_layers_import_downwards_only():
+    assert not upward_imports(package_modules()), upward_imports(package_modules())
+
+
+def test_the_layer_check_finds_an_upward_import():
+    trees = {name: ast.parse(text) for name, text in {
+        "logiq_sql.core.units": "", "logiq_sql.spec.scenario": "def f():\n    from logiq_sql.matching import match\n",
+        "logiq_sql.matching.match": "from logiq_sql.core import units\n"}.items()}
+    assert upward_imports(trees) == ["logiq_sql.spec.scenario (spec) imports logiq_sql.matching.match (matching)"]
+
+
+def test_the_harness_never_imports_the_matcher():
+    """The evaluation's ground truth must not depend on the matcher it judges (docs/evaluation.md)."""
+    trees = package_modules()
+    found = [f"{name} imports {module}" for name, tree in trees.items() if name.startswith("logiq_sql.evaluation")
+             for module, _ in logiq_imports(ast.walk(tree), set(trees)) if module.startswith("logiq_sql.matching")]
+    assert not found, found

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from logiq_sql.cli import main
+from logiq_sql.cli.lint import lint_scenarios
 from logiq_sql.core.errors import ScenarioError
-from logiq_sql.matching.lint import lint_scenarios
-from logiq_sql.matching.match import match
-from logiq_sql.spec.plan import render, resolve_scenarios
+from logiq_sql.matching.match import match, render
+from logiq_sql.spec.plan import resolve_scenarios
 from logiq_sql.spec.scenario import list_scenarios, load_scenario, scenario_files
 from tests.helpers import Y1, actor, intervals, make_db, times
 

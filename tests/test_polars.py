@@ -283,7 +283,7 @@ def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
     """A construct Polars SQL cannot run is a lint problem in a portable file, unless the file has a Polars
     override or the engine refuses it by name; an override must replace an existing file, bind the same
     parameters and itself run on Polars."""
-    from logiq_sql.matching.lint import lint_tree
+    from logiq_sql.cli.lint import lint_tree
 
     root = tmp_path / "queries"
     (root / "relations").mkdir(parents=True)

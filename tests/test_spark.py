@@ -19,7 +19,7 @@ import pytest
 import sqlglot
 
 from logiq_sql import ingest, match
-from logiq_sql.matching.lint import spark_problems
+from logiq_sql.cli.lint import spark_problems
 
 pytestmark = pytest.mark.spark
 DATA = Path(__file__).parent / "data"
@@ -230,7 +230,7 @@ def test_lint_runs_queries_on_spark_and_reports_what_fails(spark, tmp_path):
     root = tmp_path / "queries"
     (root / "phases").mkdir(parents=True)
     (root / "phases/odd.sql").write_text("select regexp_full_match(kind, 'c.*') as m from tracks")
-    from logiq_sql.matching.lint import spark_problems_in
+    from logiq_sql.cli.lint import spark_problems_in
 
     text = sqlglot.transpile((root / "phases/odd.sql").read_text(), read="duckdb", write="spark")[0]
     problems = spark_problems_in(spark, "phases/odd.sql", text, {})

@@ -186,7 +186,7 @@ def cmd_explain(args: argparse.Namespace) -> int:
 
 
 def cmd_lint(args: argparse.Namespace) -> int:
-    from logiq_sql.matching.lint import lint_scenarios
+    from logiq_sql.cli.lint import lint_scenarios
 
     problems = lint_scenarios(args.scenario or None, args.scenario_path)
     for problem in problems:

@@ -35,6 +35,7 @@ from logiq_sql.core.errors import LogiqError, arg
 from logiq_sql.core.paths import query_path
 from logiq_sql.core.sql import bind, materialise, query_text, sql_literal, step_key, used_values
 from logiq_sql.storage import dataset
+from logiq_sql.storage.db import stored_schema
 
 ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
@@ -157,11 +158,6 @@ class DuckEngine(Engine):
         self._forget_shared()
         for table in PARTITIONED_BY_DRIVE:
             self.con.execute(f"drop table if exists temp.main.{table}")
-
-
-def stored_schema(con: duckdb.DuckDBPyConnection) -> str:
-    """The DuckDB file's own schema, quoted: names in it stay reachable while a temp table shadows them."""
-    return '"' + con.execute("select current_database()").fetchall()[0][0].replace('"', '""') + '".main'
 
 
 def _as_query(sql: str) -> str:

@@ -24,8 +24,8 @@ from logiq_sql.ingestion.localise import locate
 from logiq_sql.ingestion.readers.av2 import log_folders
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.ingestion.readers.sumo import run_folders
-from logiq_sql.matching.match import PERSISTED
 from logiq_sql.storage import db
+from logiq_sql.storage.store import PERSISTED
 
 FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi")
 

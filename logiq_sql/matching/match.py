@@ -25,7 +25,8 @@ import polars as pl
 
 from logiq_sql.core.batching import batches
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
-from logiq_sql.engines import check_engine, open_engine
+from logiq_sql.core.sql import render_steps
+from logiq_sql.engines import check_engine, open_engine, render_for_engine
 from logiq_sql.matching import relations_of
 from logiq_sql.matching.runner import prepare_relations, run_scenario, shared_phase_steps
 from logiq_sql.spec.plan import (
@@ -43,7 +44,6 @@ from logiq_sql.spec.plan import (
 
 # names callers import from here, kept since match.py was split into plan / runner / store
 from logiq_sql.spec.plan import phase_steps as phase_steps  # noqa: F401
-from logiq_sql.spec.plan import render as render  # noqa: F401
 from logiq_sql.spec.plan import scenario_steps as scenario_steps  # noqa: F401
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
 from logiq_sql.storage import db
@@ -276,3 +276,19 @@ def read_result(con: duckdb.DuckDBPyConnection, run_drives: pl.DataFrame, names:
     )
 
 
+def render(scenario: str, *, overrides: dict[str, str] | None = None, ego: str = "auto",
+           relation_range: str = DEFAULT_RELATION_RANGE, engine: str = "duckdb",
+           scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> str:
+    """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set (DuckDB),
+    or as Spark SQL with the values to bind listed above it (``engine="spark"``)."""
+    (s,) = resolve_scenarios([scenario], overrides or {}, scenario_path)
+    values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
+    if engine != "duckdb":
+        return render_for_engine(engine, s, scenario_steps(s), values)
+    header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
+              f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
+              + ("-- encroachments (shapely, logiq_sql/matching/encroachment.py) is read from the file: match --keep once first.\n"
+                 if s.junctions else "")
+              + "create or replace temp table run_drives as "
+                "select drive_id from drive_inputs where status = 'ingested';\n")
+    return header + render_steps(scenario_steps(s), values)

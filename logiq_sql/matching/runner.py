@@ -4,7 +4,6 @@ and coverage samples, as Polars frames for ``logiq_sql.storage.store``."""
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
 
 import duckdb
 import polars as pl
@@ -25,22 +24,10 @@ from logiq_sql.spec.plan import (
 )
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES
+from logiq_sql.storage.store import ScenarioOutput
 
 # what run_scenario writes besides the phase steps' tables: a query reading one of them depends on the scenario
 SCENARIO_TABLES = ("scenario_matches", "_kpi", "match_samples", "_sample")
-
-
-@dataclass
-class ScenarioOutput:
-    """What one scenario produced on one batch of drives."""
-
-    scenario: Scenario
-    matches: pl.DataFrame
-    phases: pl.DataFrame
-    kpis: pl.DataFrame
-    samples: pl.DataFrame
-    buckets: pl.DataFrame
-    egos: pl.DataFrame  # drive_id, egos: how many SUTs each drive had
 
 
 def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scenario],

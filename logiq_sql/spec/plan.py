@@ -11,8 +11,6 @@ from __future__ import annotations
 from logiq_sql.core import units
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.core.schema import OBJECT_KINDS
-from logiq_sql.core.sql import render_steps
-from logiq_sql.engines import render_for_engine
 from logiq_sql.spec.contract import check_scenario
 from logiq_sql.spec.scenario import MAX_PHASES, Scenario, ScenarioPath, list_scenarios, load_scenario
 
@@ -184,21 +182,3 @@ def scenario_queries(s: Scenario) -> list[str]:
     """Every query file a run of ``s`` executes, in order."""
     return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, SAMPLES_QUERY, *s.kpi_queries,
             *s.sample_queries]
-
-
-def render(scenario: str, *, overrides: dict[str, str] | None = None, ego: str = "auto",
-           relation_range: str = DEFAULT_RELATION_RANGE, engine: str = "duckdb",
-           scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> str:
-    """The SQL that finds the matches of ``scenario``, as one statement with its parameter values set (DuckDB),
-    or as Spark SQL with the values to bind listed above it (``engine="spark"``)."""
-    (s,) = resolve_scenarios([scenario], overrides or {}, scenario_path)
-    values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
-    if engine != "duckdb":
-        return render_for_engine(engine, s, scenario_steps(s), values)
-    header = (f"-- scenario {s.name} (version {s.version}), params_hash {s.params_hash()}\n"
-              f"-- run against a logiq_sql DuckDB file; run_drives lists the drives to match.\n"
-              + ("-- encroachments (shapely, logiq_sql/matching/encroachment.py) is read from the file: match --keep once first.\n"
-                 if s.junctions else "")
-              + "create or replace temp table run_drives as "
-                "select drive_id from drive_inputs where status = 'ingested';\n")
-    return header + render_steps(scenario_steps(s), values)

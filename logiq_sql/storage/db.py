@@ -528,3 +528,8 @@ def docs_markdown() -> str:
             "## `drives` (view)", "",
             "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
     return "\n".join(out)
+
+
+def stored_schema(con: duckdb.DuckDBPyConnection) -> str:
+    """The DuckDB file's own schema, quoted: names in it stay reachable while a temp table shadows them."""
+    return '"' + con.execute("select current_database()").fetchall()[0][0].replace('"', '""') + '".main'

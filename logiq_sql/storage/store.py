@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import duckdb
@@ -11,11 +12,9 @@ import polars as pl
 
 from logiq_sql.core.sql import query_text, recount_coverage
 from logiq_sql.core.timing import stage
-from logiq_sql.engines import stored_schema
-from logiq_sql.matching.runner import ScenarioOutput
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import db
-from logiq_sql.storage.db import MATCH_PHASES, MATCHES
+from logiq_sql.storage.db import MATCH_PHASES, MATCHES, stored_schema
 
 # kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive, with the
 # file whose header documents their columns
@@ -29,6 +28,19 @@ ENCROACHMENTS_GRAIN = ("one row per (drive_id, ego_id, actor_id) pair of junctio
                        "an area")
 EXPORTED = ("drives", "matches", "match_phases", "kpis", "coverage", "coverage_samples", "match_runs",
             "drive_scenarios")
+
+
+@dataclass
+class ScenarioOutput:
+    """What one scenario produced on one batch of drives."""
+
+    scenario: Scenario
+    matches: pl.DataFrame
+    phases: pl.DataFrame
+    kpis: pl.DataFrame
+    samples: pl.DataFrame
+    buckets: pl.DataFrame
+    egos: pl.DataFrame  # drive_id, egos: how many SUTs each drive had
 
 
 def ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]) -> None:
