@@ -1,4 +1,4 @@
-"""Polars SQL against DuckDB, query file by query file, so the verdict table (engines.POLARS_UNSUPPORTED) cannot
+"""Polars SQL against DuckDB, query file by query file, so the verdict table (engines.polars_engine.POLARS_UNSUPPORTED) cannot
 rot: a portable query it does not list must give DuckDB's rows over the same inputs; a query it lists must fail
 with the listed error. What the engine runs instead (a Polars override in queries/overrides/polars/, or the match
 ids' md5 computed afterwards) must give DuckDB's rows too. --engine polars runs the scenarios whose every file it
@@ -17,7 +17,9 @@ import pytest
 from logiq_sql import ingest, match
 from logiq_sql.core.paths import data_dir
 from logiq_sql.core.sql import query_text
-from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine, override, polars_blocker
+from logiq_sql.engines.base import EngineError
+from logiq_sql.engines.duckdb_engine import DuckEngine
+from logiq_sql.engines.polars_engine import POLARS_UNSUPPORTED, PolarsEngine, override, polars_blocker
 from logiq_sql.matching.encroachment import encroachments
 from logiq_sql.matching.match import select_run_drives
 from logiq_sql.spec.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
@@ -160,7 +162,7 @@ def test_engine_polars_stops_before_running_and_names_the_query(drives, monkeypa
 def test_engine_spark_without_pyspark_says_how_to_install(monkeypatch):
     import sys
 
-    from logiq_sql.engines import spark_session
+    from logiq_sql.engines.spark_engine import spark_session
 
     monkeypatch.setitem(sys.modules, "pyspark.sql", None)  # as if PySpark were not installed
     with pytest.raises(EngineError, match=re.escape("pip install 'logiq-sql[spark]'")):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import duckdb
 import polars as pl
 
-from logiq_sql.engines import DuckEngine
+from logiq_sql.engines.duckdb_engine import DuckEngine
 from logiq_sql.matching.match import match
 from logiq_sql.matching.runner import shared_phase_steps
 from logiq_sql.spec.plan import parse_ego, resolve_scenarios, run_values

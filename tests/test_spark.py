@@ -35,7 +35,7 @@ def spark(client_jit):
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail("CI=true but PySpark is not installed: pip install '.[spark]' (make venv does).")
         pytest.skip("PySpark is not installed: pip install 'logiq-sql[spark]' (needs Java 17).")
-    from logiq_sql.engines import spark_session
+    from logiq_sql.engines.spark_engine import spark_session
 
     started = time.perf_counter()
     session = spark_session("local[2]")
@@ -159,7 +159,7 @@ def test_spark_writes_the_results_of_a_dataset_itself(spark, tmp_path, monkeypat
     in OUT/logiq.duckdb give DuckDB's results. A rerun replaces partitions (no duplicates); a drive added to the
     dataset later is matched alone, incrementally."""
     from logiq_sql.cli import EXIT_OK, main
-    from logiq_sql.engines import SparkEngine
+    from logiq_sql.engines.spark_engine import SparkEngine
 
     cr, nu = DATA / "commonroad_ngsim/scenarios_2018b", DATA / "nuscenes_mini_scenarionet"
     first = [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"])]
@@ -172,7 +172,7 @@ def test_spark_writes_the_results_of_a_dataset_itself(spark, tmp_path, monkeypat
     asked = []  # every query the driver collected: only counts for the progress lines may come back
     collect = SparkEngine.frame
     monkeypatch.setattr(SparkEngine, "frame", lambda self, sql: asked.append(sql) or collect(self, sql))
-    monkeypatch.setattr("logiq_sql.engines._copy_into_duckdb", lambda *a: pytest.fail("a table came to the driver"))
+    monkeypatch.setattr("logiq_sql.engines.base.copy_into_duckdb", lambda *a: pytest.fail("a table came to the driver"))
 
     def both(ingests, *extra) -> Path:
         duck = tmp_path / f"duck_{len(ingests)}.duckdb"
@@ -239,7 +239,7 @@ def test_lint_runs_queries_on_spark_and_reports_what_fails(spark, tmp_path):
 
 def test_rendered_spark_sql_binds_its_parameters_and_parses(spark):
     """render --engine spark: the values are comments and args, never SQL text; Spark parses the statement."""
-    from logiq_sql.engines import render_spark_steps
+    from logiq_sql.engines.spark_engine import render_spark_steps
     from logiq_sql.matching.match import parse_ego, render, resolve_scenarios, run_values, scenario_steps
 
     for s in resolve_scenarios(None, {"max_distance_from_cyclist": "6m"}):

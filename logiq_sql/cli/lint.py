@@ -17,7 +17,7 @@ from sqlglot import exp
 from sqlglot.errors import ErrorLevel
 
 from logiq_sql.core.paths import data_dir
-from logiq_sql.engines import OVERRIDES, POLARS_UNSUPPORTED, digests_after, override
+from logiq_sql.engines.polars_engine import OVERRIDES, POLARS_UNSUPPORTED, digests_after, override
 
 # function names (as sqlglot spells the node class) that do not carry over to Spark
 _NOT_PORTABLE_FUNCS = {
@@ -56,7 +56,7 @@ def polars_findings(tree: exp.Expression) -> list[str]:
 def lint_sql(text: str, where: str, polars_override: bool = False, polars_refused: bool = False) -> list[str]:
     """Problems found in one query (empty when portable). What does not run on Polars SQL is a problem unless
     the file has a Polars override (``polars_override``) or the Polars engine refuses it by name
-    (``polars_refused``: engines.POLARS_UNSUPPORTED, tested to fail there)."""
+    (``polars_refused``: engines.polars_engine.POLARS_UNSUPPORTED, tested to fail there)."""
     problems = []
     try:
         tree = sqlglot.parse_one(text, read="duckdb")
@@ -184,7 +184,8 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from pyspark.sql import types as T
 
     from logiq_sql.core.sql import bind
-    from logiq_sql.engines import INPUT_TABLES, spark_text, spark_type
+    from logiq_sql.engines.base import INPUT_TABLES
+    from logiq_sql.engines.spark_engine import spark_text, spark_type
     from logiq_sql.outputs import replay
     from logiq_sql.spec.plan import parse_ego, run_values, scenario_steps
     from logiq_sql.spec.scenario import list_scenarios

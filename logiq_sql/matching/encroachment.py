@@ -164,7 +164,7 @@ def _occupancy_of(lines, areas, owners, paths, vertices) -> tuple[np.ndarray, np
 
 def encroachments(con) -> pl.DataFrame:
     """The ``encroachments`` rows of every crossing pair whose paths share an area. ``con``: a DuckDB connection
-    or an engine (logiq_sql/engines.py) holding the crossing_pairs, passages and actor_paths steps."""
+    or an engine (logiq_sql/engines/) holding the crossing_pairs, passages and actor_paths steps."""
     engine = as_engine(con)
     pairs = engine.frame("crossing_pairs")
     if pairs.is_empty():

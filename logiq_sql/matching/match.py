@@ -26,7 +26,8 @@ import polars as pl
 from logiq_sql.core.batching import batches
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.core.sql import render_steps
-from logiq_sql.engines import check_engine, open_engine, render_for_engine
+from logiq_sql.engines import check_engine, open_engine
+from logiq_sql.engines.spark_engine import render_for_engine
 from logiq_sql.matching import relations_of
 from logiq_sql.matching.runner import prepare_relations, run_scenario, shared_phase_steps
 from logiq_sql.spec.plan import (

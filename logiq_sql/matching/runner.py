@@ -10,7 +10,8 @@ import polars as pl
 
 from logiq_sql.core.sql import step_key, tables_read
 from logiq_sql.core.timing import stage
-from logiq_sql.engines import Engine, as_engine
+from logiq_sql.engines import as_engine
+from logiq_sql.engines.base import Engine
 from logiq_sql.matching.encroachment import ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA, encroachments
 from logiq_sql.spec.contract import sample_columns
 from logiq_sql.spec.plan import (

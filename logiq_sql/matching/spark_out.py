@@ -47,7 +47,7 @@ OUTPUT_TABLES = {t.name: t for t in db.OUTPUT_TABLES}
 
 
 class SparkResults:
-    """The results of one run, written under ``out`` by the Spark engine ``engine`` (logiq_sql.engines.SparkEngine)."""
+    """The results of one run, written under ``out`` by the Spark engine ``engine`` (engines/spark_engine.py)."""
 
     def __init__(self, engine, out: str | Path, run_id: str, ego: str, range_m: float, keep: bool):
         self.engine, self.spark = engine, engine.spark
@@ -66,7 +66,7 @@ class SparkResults:
         as an int, say), then ``extra``."""
         from pyspark.sql import functions as F
 
-        from logiq_sql.engines import spark_type
+        from logiq_sql.engines.spark_engine import spark_type
 
         t = OUTPUT_TABLES[table]
         return df.select(*[F.col(c.name).cast(spark_type(c.dtype)).alias(c.name) for c in t.columns], *extra)
@@ -212,7 +212,7 @@ class SparkResults:
         """The histograms over every coverage sample under OUT (queries/coverage/histogram.sql on Spark)."""
         from pyspark.sql import types as T
 
-        from logiq_sql.engines import spark_text, spark_type
+        from logiq_sql.engines.spark_engine import spark_text, spark_type
 
         spark = self.spark
         for t in (db.COVERAGE_SAMPLES, db.COVERAGE_BUCKETS):
