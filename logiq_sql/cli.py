@@ -191,6 +191,20 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_cache(args: argparse.Namespace) -> int:
+    from logiq_sql import step_cache
+    from logiq_sql.db import open_for_read, open_for_write
+
+    if not Path(args.db).is_file():
+        raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")
+    if args.clear:
+        with open_for_write(args.db) as con:
+            step_cache.clear(con)
+    with open_for_read(args.db) as con:
+        print(f"step cache of {args.db}: {step_cache.describe(step_cache.size(con))}")
+    return EXIT_OK
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from logiq_sql.report import report
 
@@ -418,6 +432,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", required=True, metavar="FILE")
     p.add_argument("--limit", type=int, default=40, help="rows to print (default 40)")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser("cache", help="the size of the step cache in a DuckDB file, or --clear it", epilog=EPILOG,
+                       description="match keeps the rows of its steps in the file and reads them back when a later "
+                                   "run needs the same step (same SQL, values and drive rows): README, 'The step cache'. "
+                                   "Re-ingesting a drive drops its entries; --clear drops all.")
+    p.add_argument("--db", required=True, metavar="FILE")
+    p.add_argument("--clear", action="store_true", help="drop every entry of the cache")
+    p.set_defaults(func=cmd_cache)
 
     p = sub.add_parser("report", help="write one self-contained HTML report of a matched file", epilog=EPILOG,
                        description="Coverage histograms, KPI distributions, the match table with filters, every "
