@@ -553,6 +553,13 @@ def docs_markdown() -> str:
             "area of every ego-actor pair whose paths through a junction cross, as WKT with the stretch of each "
             "path along which its box overlaps the area (`logiq_sql/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
             "traffic_light.", "",
+            "## `step_cache_<key>`", "",
+            "The rows of one step of a match run, for every drive whose `step_cache` entry names the table: the "
+            "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them. "
+            "`match` reads them back instead of running the step again when the step's query text, bound values "
+            "and inputs and the drive's ingest version are the same (`logiq_sql/step_cache.py`; README, 'The step "
+            "cache'). Rows no entry refers to are deleted, a table with none dropped; `logiq-sql cache --db FILE` "
+            "gives their size, `--clear` drops them all.", "",
             "## `drives` (view)", "",
             "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
     return "\n".join(out)

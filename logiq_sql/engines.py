@@ -130,12 +130,12 @@ class DuckEngine(Engine):
             self._keys[table] = key
             self.cache.record(self.owners, step, table, key, computed=False)
             return
-        started = time.perf_counter()
+        started = time.process_time()
         compute()
         self._keys[table] = key
         if key is not None:
             self.cache.record(self.owners, step, table, key, computed=True,
-                              compute_s=time.perf_counter() - started)
+                              compute_s=time.process_time() - started)
 
     def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
         if table in self._views:  # a table cannot replace a view

@@ -27,11 +27,15 @@ from dataclasses import dataclass, field
 import duckdb
 import polars as pl
 
+from logiq_sql import db
 from logiq_sql.engines import stored_schema
 from logiq_sql.errors import LogiqError
 
 CACHE_FORMAT = "1"  # bump when what a key covers changes
 TABLE_PREFIX = "step_cache_"
+# every step is kept until this many cells were written in the run: a write has a fixed cost, so the cost per cell
+# of a few small tables would make every large one look too dear to keep
+CALIBRATION_CELLS = 1_000_000
 
 
 def cache_key(text: str, bound: dict[str, object], inputs: dict[str, str]) -> str:
@@ -159,16 +163,19 @@ class StepCache:
     def usable(self) -> bool:
         return self._usable
 
-    def load(self, table: str, key: str) -> bool:
-        """Make the temp table ``table`` the cached rows of ``key`` for the batch, if every drive has them."""
-        if not (self._usable and self.read):
-            return False
+    def _holds(self, key: str) -> bool:
+        """Whether every drive of the batch has an entry of ``key`` for its current ingest version."""
         (n,) = self.con.execute(
             "select count(distinct c.drive_id) from step_cache as c join _batch_versions as b "
             "on c.drive_id = b.drive_id and c.ingest_version = b.ingest_version where c.step_key = $k",
             {"k": key}).fetchall()[0]
-        (batch,) = self.con.execute("select count(*) from _batch_versions").fetchall()[0]
-        if n < batch:
+        return n == len(self._batch)
+
+    def load(self, table: str, key: str) -> bool:
+        """Make the temp table ``table`` the cached rows of ``key`` for the batch, if every drive has them."""
+        if not (self._usable and self.read):
+            return False
+        if not self._holds(key):
             return False
         self.con.execute(f"create or replace temp table {table} as select * from "
                          f"{stored_schema(self.con)}.{TABLE_PREFIX}{key} "
@@ -180,7 +187,8 @@ class StepCache:
         """After ``table`` was computed in ``compute_s`` seconds (``computed``) or loaded: the batch's rows kept
         under ``key`` and each owner's entry for the step pointed at it; rows no entry refers to any more go.
         A computed step is kept only when computing it took at least what keeping as many cells has cost so far
-        in this run (writing a wide per-frame table can cost more than its query), unless ``keep_all``."""
+        in this run, both in CPU seconds of the process (steadier than wall time on a shared machine; writing a
+        wide per-frame table can cost more than its query), unless ``keep_all``."""
         if not (self._usable and owners):
             self.uncached += 1
             return
@@ -197,20 +205,28 @@ class StepCache:
             self.computed += 1
         else:
             self.reused += 1
-        if computed:
+        write = computed and not self._holds(key)  # match --force recomputes rows the cache already holds
+        if write:
             (rows,) = con.execute(f"select count(*) from temp.main.{table}").fetchall()[0]
             cells = rows * len(columns)
-            if not self.keep_all and self._cells and compute_s < cells * self._write_s / self._cells:
+            if (not self.keep_all and self._cells >= CALIBRATION_CELLS
+                    and compute_s < cells * self._write_s / self._cells):
                 self.not_kept += 1
                 return
-            started = time.perf_counter()
+            started = time.process_time()
             # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
             # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/store.py)
-            con.execute(f"create table if not exists {stored}.{data} as select * from temp.main.{table} limit 0")
+            if data not in cache_tables(con):
+                con.execute(f"create table {stored}.{data} as select * from temp.main.{table} limit 0")
+                db.comment_derived(con, f"{stored}.{data}", data,
+                                   f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
+                                   "name this table (logiq_sql/step_cache.py).", {},
+                                   "As the step's query returns it (step_cache.step names the query; its header "
+                                   "describes the column).")
         con.register("_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String}))
         con.execute("begin transaction")
         try:
-            if computed:
+            if write:
                 con.execute(f"delete from {stored}.{data} where drive_id in (select drive_id from _batch_versions)")
                 con.execute(f"insert into {stored}.{data} select * from temp.main.{table}")
             con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
@@ -228,8 +244,8 @@ class StepCache:
                 if not con.execute("select count(*) from step_cache where step_key = $o", {"o": old}).fetchall()[0][0]:
                     con.execute(f"drop table {stored}.{old_table}")
             con.execute("commit")
-            if computed:
-                self._write_s += time.perf_counter() - started
+            if write:
+                self._write_s += time.process_time() - started
                 self._cells += cells
         except BaseException:
             con.execute("rollback")
