@@ -172,14 +172,18 @@ def cmd_lint(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _existing(db: str) -> None:
+    if not Path(db).is_file():
+        raise LogiqError(f"--db {db}: no such file (write one with `logiq-sql ingest`).")
+
+
 def cmd_query(args: argparse.Namespace) -> int:
     import duckdb
     import polars as pl
 
     from logiq_sql.db import open_for_read
 
-    if not Path(args.db).is_file():
-        raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")
+    _existing(args.db)
     with open_for_read(args.db) as con:
         try:
             frame = con.sql(args.sql).pl()
@@ -195,8 +199,7 @@ def cmd_cache(args: argparse.Namespace) -> int:
     from logiq_sql import step_cache
     from logiq_sql.db import open_for_read, open_for_write
 
-    if not Path(args.db).is_file():
-        raise LogiqError(f"--db {args.db}: no such file (write one with `logiq-sql ingest`).")
+    _existing(args.db)
     if args.clear:
         with open_for_write(args.db) as con:
             step_cache.clear(con)

@@ -45,8 +45,8 @@ from logiq_sql.plan import render as render  # noqa: F401
 from logiq_sql.plan import scenario_steps as scenario_steps  # noqa: F401
 from logiq_sql.runner import prepare_relations, run_scenario, shared_phase_steps
 from logiq_sql.scenario import Scenario, ScenarioPath
-from logiq_sql.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.step_cache import StepCache
+from logiq_sql.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
 
 # drives are matched in batches of about this many track rows, each stored in its own transaction: memory stays

@@ -171,6 +171,13 @@ class StepCache:
             {"k": key}).fetchall()[0]
         return n == len(self._batch)
 
+    def _entries(self, step: str, key: str) -> int:
+        """How many (owner, drive) entries of the batch name ``key`` for ``step`` at the current ingest version."""
+        return self.con.execute(
+            "select count(*) from step_cache as c join _batch_versions as b on c.drive_id = b.drive_id "
+            "and c.ingest_version = b.ingest_version where c.step = $s and c.step_key = $k "
+            "and c.scenario in (select scenario from _owners)", {"s": step, "k": key}).fetchall()[0][0]
+
     def load(self, table: str, key: str) -> bool:
         """Make the temp table ``table`` the cached rows of ``key`` for the batch, if every drive has them."""
         if not (self._usable and self.read):
@@ -224,6 +231,9 @@ class StepCache:
                                    "As the step's query returns it (step_cache.step names the query; its header "
                                    "describes the column).")
         con.register("_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String}))
+        if not write and self._entries(step, key) == len(owners) * len(self._batch):
+            con.unregister("_owners")  # each owner's entry already names this key for every drive of the batch
+            return
         con.execute("begin transaction")
         try:
             if write:

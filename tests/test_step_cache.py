@@ -206,3 +206,18 @@ def test_the_cache_can_be_turned_off(matched, monkeypatch):
     monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "off")
     result = match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
     assert result.cache_steps == [] and "step cache" not in result.summary()
+
+
+def test_the_cache_command_reports_the_size_and_clears(matched, capsys):
+    from logiq_sql.cli import main
+
+    assert main(["cache", "--db", str(matched)]) == 0
+    rows = int(capsys.readouterr().out.split(": ", 1)[1].split(" rows")[0].replace(",", ""))
+    with duckdb.connect(str(matched), read_only=True) as con:
+        tables = [t for (t,) in con.execute("select table_name from duckdb_tables() "
+                                            "where table_name like 'step_cache_%'").fetchall()]
+        assert rows == sum(con.execute(f"select count(*) from {t}").fetchall()[0][0] for t in tables) > 0
+    assert main(["cache", "--db", str(matched), "--clear"]) == 0
+    assert "0 rows in 0 table(s), 0 index entries" in capsys.readouterr().out
+    result = match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
+    assert {status for *_, status in result.cache_steps} == {"computed"}  # nothing left to reuse
