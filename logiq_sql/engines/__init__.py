@@ -14,11 +14,12 @@ from logiq_sql.engines.duckdb_engine import DuckEngine
 from logiq_sql.engines.polars_engine import PolarsEngine, check_runs
 from logiq_sql.engines.spark_engine import SparkEngine
 
-# name -> how to open it on a DuckDB file's connection (con, spark_master, spark_tables)
-ENGINES: dict[str, Callable[[duckdb.DuckDBPyConnection, str | None, str | None], Engine]] = {
-    "duckdb": lambda con, master, tables: DuckEngine(con),
-    "spark": lambda con, master, tables: SparkEngine(con, master, tables),
-    "polars": lambda con, master, tables: PolarsEngine(con),
+# name -> how to open it on a DuckDB file's connection (con, spark_master, spark_tables, a StepCache or None);
+# only the DuckDB engine uses the step cache
+ENGINES: dict[str, Callable[..., Engine]] = {
+    "duckdb": lambda con, master, tables, cache: DuckEngine(con, cache),
+    "spark": lambda con, master, tables, cache: SparkEngine(con, master, tables),
+    "polars": lambda con, master, tables, cache: PolarsEngine(con),
 }
 # what each engine must check before a run starts, beyond the engine being known
 PREFLIGHT: dict[str, Callable[[str], None]] = {"polars": check_runs}
@@ -33,9 +34,10 @@ def check_engine(name: str, relatives: list[str]) -> None:
 
 
 def open_engine(name: str, con: duckdb.DuckDBPyConnection, spark_master: str | None = None,
-                spark_tables: str | None = None) -> Engine:
+                spark_tables: str | None = None, cache=None) -> Engine:
+    """The engine ``name`` on ``con``; ``cache`` (a StepCache) is used by the DuckDB engine only."""
     check_engine(name, [])
-    return ENGINES[name](con, spark_master, spark_tables)
+    return ENGINES[name](con, spark_master, spark_tables, cache)
 
 
 def as_engine(con_or_engine: duckdb.DuckDBPyConnection | Engine) -> Engine:

@@ -27,6 +27,9 @@ from logiq_sql.core.errors import LogiqError
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
+# what a step may read besides other steps: the canonical tables (a drive's rows and its map's, versioned by
+# ingest_versions) and the batch's drive ids
+DRIVE_INPUT_NAMES = frozenset({*(t.name for t in INPUT_TABLES), "run_drives"})
 
 
 class EngineError(LogiqError):
@@ -37,6 +40,7 @@ class Engine:
     """What the matcher needs from an engine (module docstring); DuckEngine is the reference."""
 
     name = "engine"
+    owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
 
     def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
         raise NotImplementedError

@@ -24,7 +24,7 @@ from logiq_sql.ingestion.localise import locate
 from logiq_sql.ingestion.readers.av2 import log_folders
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.ingestion.readers.sumo import run_folders
-from logiq_sql.storage import db
+from logiq_sql.storage import db, step_cache
 from logiq_sql.storage.store import PERSISTED
 
 FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi")
@@ -414,6 +414,9 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
         con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
         _drop_outputs(con, ids["drive_id"].to_list())
+        # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
+        step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
+                                     "where map_id in (select map_id from _map_ids)")
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive cost 0.4 s per 100 drives)
@@ -465,6 +468,9 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, [drive.drive_id])
+        con.register("_rejected", pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String}))
+        step_cache.set_versions(con, "select drive_id from _rejected")
+        con.unregister("_rejected")
         db.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
