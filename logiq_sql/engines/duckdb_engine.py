@@ -69,8 +69,8 @@ class DuckEngine(Engine):
         if key not in self._shared:
             materialise(self.con, table, relative, values)
             return
-        # computed once, read by each scenario through a view: at tier S ego_on_same_lane.sql costs about 2 CPU s,
-        # a copy of its 1.1 M rows 0.6
+        # computed once, read by each scenario through a view: copying a shared step's rows costs a fraction of
+        # computing them again (benchmarks/README.md, "Figures behind the code's comments")
         if key not in self._kept:
             self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
             materialise(self.con, self._kept[key], relative, values)
@@ -103,8 +103,8 @@ class DuckEngine(Engine):
         if self.cache is not None:
             self.cache.start_batch()
         # a temp table shadows the stored table of the same name, so every query of the batch reads the batch's
-        # rows: a batch then costs what its drives hold, not what the whole file holds (at 10 M rows, queries
-        # reading the whole track_lanes per batch made matching grow with batches x file size)
+        # rows: a batch then costs what its drives hold, not what the whole file holds (queries reading the whole
+        # track_lanes per batch made matching grow with batches x file size)
         stored = stored_schema(self.con)
         (others,) = self.con.execute(f"select count(*) from {stored}.drive_inputs where status = 'ingested' and "
                                      "drive_id not in (select drive_id from run_drives)").fetchall()[0]

@@ -119,7 +119,7 @@ def spark_session(master: str | None = None):
                .config("spark.ui.enabled", "false")
                .config("spark.ui.showConsoleProgress", "false")
                .config("spark.sql.shuffle.partitions", "4")
-               # a local or client driver JVM starts with this; Spark's 1 GB default ran out building the broadcast
+               # a local or client driver JVM starts with this; Spark's smaller default ran out building the broadcast
                # side of a relation join (SPARK_DRIVER_MEMORY to change it; spark-submit's --driver-memory wins)
                .config("spark.driver.memory", os.environ.get("SPARK_DRIVER_MEMORY", "4g"))
                .config("spark.sql.session.timeZone", "UTC")

@@ -87,8 +87,8 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
     seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
     with db.open_for_write(db_path, wait_s, progress) as con:
         # the reader holds up to CHUNK_ROWS rows in Polars and the batch is localised in Python beside DuckDB:
-        # DuckDB gets half the limit (its cache of a large file would fill all of it; at 50 M rows the rest came
-        # to 2 GiB, README "Memory")
+        # DuckDB gets half the limit (its cache of a large file would fill all of it, and the rest needs room;
+        # README "Memory")
         db.share_memory(con, INGEST_DUCKDB_SHARE)
         for i, path in enumerate(files, 1):
             count = 0
@@ -419,7 +419,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
                                      "where map_id in (select map_id from _map_ids)")
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
-        # one insert per table for the whole batch (one per map or drive cost 0.4 s per 100 drives)
+        # one insert per table for the whole batch (one per map or drive paid DuckDB's per-statement cost each time)
         for table in schema.MAP_TABLE_NAMES:
             _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
         _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])

@@ -53,11 +53,12 @@ from logiq_sql.storage.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.storage.store import PERSISTED, ensure_kpi_columns, export, store_batch
 
 # drives are matched in batches of about this many track rows, each stored in its own transaction: memory stays
-# bounded whatever the file holds (at 50 M rows one pass over every drive ran out of DuckDB's 4 GB)
+# bounded whatever the file holds (one pass over every drive of a large file runs out of DuckDB's memory limit;
+# benchmarks/README.md, "Figures behind the code's comments")
 MATCH_BATCH_ROWS = 2_000_000
 # when Spark writes the results itself nothing of a batch is held on the driver and the executors spill: batches
-# only bound a killed run's loss, while every batch pays Spark's fixed cost per step (a job per checkpointed step,
-# about 1-9 s each), so they are much larger
+# only bound a killed run's loss, while every batch pays Spark's fixed cost per step (a job per checkpointed
+# step), so they are much larger
 SPARK_RESULTS_BATCH_ROWS = 100_000_000
 
 

@@ -272,9 +272,9 @@ def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, d
 
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
-# DuckDB spills to <file>.tmp beyond this instead of growing. 3 GB (2.79 GiB), with ingest's half of it
-# (ingestion.INGEST_DUCKDB_SHARE), kept a 50 M-row run, Python and Polars included, at 3.80 GiB resident
-# (docs/operations.md, "Memory"); at 4 GB it peaked at 5.07 GiB
+# DuckDB spills to <file>.tmp beyond this instead of growing. With ingest's half of it
+# (ingestion.INGEST_DUCKDB_SHARE) a tier-L run, Python and Polars included, stays within the 4 GiB bound, which
+# a limit of 4GB did not (docs/operations.md, "Memory"; the figures in benchmarks/README.md)
 DEFAULT_MEMORY_LIMIT = "3GB"
 
 

@@ -42,8 +42,8 @@ ego as (
     -- each ego row three times, once per band of x it may meet actors in: bands are as wide as the larger range
     -- (relation_range, object_relation_range) plus 1 m, so every actor within range is in the ego's band or the
     -- next one on either side, and the pair join below is an equi-join on (drive, frame, band) instead of on
-    -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (0.9
-    -- instead of 1.5 CPU s for the join at tier S). The range test is the same, so the pairs are the same; the
+    -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (a
+    -- cheaper join: benchmarks/README.md). The range test is the same, so the pairs are the same; the
     -- extra metre keeps a pair at exactly the range in a neighbouring band whatever the rounding of the divisions
     select
         t.*,

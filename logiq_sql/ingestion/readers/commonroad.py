@@ -101,8 +101,8 @@ def _load(path: Path) -> ET.Element:
         if raw[:2] == b"\x1f\x8b":
             raw = gzip.decompress(raw)
         # Speed: whitespace between tags (indentation) is dropped -- CommonRoad has no mixed content -- and the
-        # cyclic garbage collector is paused while the tree of ~10^5 elements is built; both together make
-        # parsing about 5x faster.
+        # cyclic garbage collector is paused while the tree is built (it would rescan the growing tree of
+        # many small objects again and again); both make parsing several times faster (benchmarks/README.md).
         raw = _INDENT.sub(b"><", raw)
         gc.disable()
         root = ET.fromstring(raw)

@@ -60,9 +60,9 @@ def check_table(frame: pl.DataFrame, table: schema.Table, path: str | Path,
 
 
 # drives are read from the file a few million rows at a time (a drive is never split): memory stays bounded on
-# large files whatever the drives' sizes (200 drives at a time once read 40 M rows, 10 GiB, at tier L); each chunk
-# is one filtered scan of the file, so chunks are not smaller than they need to be. Reading the 50 M rows of tier
-# L alone: 4 M rows a chunk peaked at 1.74 GiB, 2 M at 1.44 GiB in the same time, 1 M at 1.06 GiB for 60 % more CPU
+# large files whatever the drives' sizes (a fixed count of drives at a time can be any number of rows); each chunk
+# is one filtered scan of the file, so chunks are not smaller than they need to be: this size keeps the reader's
+# peak well inside the memory bound for the same time, a smaller one costs more CPU (benchmarks/README.md)
 CHUNK_ROWS = 2_000_000
 
 
