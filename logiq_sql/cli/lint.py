@@ -183,9 +183,10 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     session (tests/test_spark.py)."""
     from pyspark.sql import types as T
 
+    from logiq_sql.core.schema import spark_type
     from logiq_sql.core.sql import bind
     from logiq_sql.engines.base import INPUT_TABLES
-    from logiq_sql.engines.spark_engine import spark_text, spark_type
+    from logiq_sql.engines.spark_engine import spark_text
     from logiq_sql.outputs import replay
     from logiq_sql.spec.plan import parse_ego, run_values, scenario_steps
     from logiq_sql.spec.scenario import list_scenarios

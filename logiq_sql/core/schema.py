@@ -17,8 +17,36 @@ OBJECT_KINDS: tuple[str, ...] = (
 )
 # What a vehicle_actor may be when a scenario's `kinds` parameter is left unset (the spec gives no default).
 VEHICLE_KINDS: tuple[str, ...] = ("vehicle", "truck", "bus", "motorcycle", "emergency_vehicle", "trailer")
+# the kinds that can be the SUT when --ego-kinds is not given: the vehicle kinds but trailer
+EGO_KINDS: tuple[str, ...] = tuple(k for k in VEHICLE_KINDS if k != "trailer")
 
 TRAFFIC_LIGHT_STATES: tuple[str, ...] = ("green", "yellow", "red", "red_yellow", "off", "unknown")
+
+
+# each column type as DuckDB, Arrow and Spark name it, by its Polars type: the one table the DDL, the Parquet
+# dataset's views and the engines read
+TYPE_NAMES: dict[type[pl.DataType], tuple[str, str, str]] = {
+    pl.String: ("VARCHAR", "string", "StringType"),
+    pl.Float64: ("DOUBLE", "float64", "DoubleType"),
+    pl.Int64: ("BIGINT", "int64", "LongType"),
+    pl.Boolean: ("BOOLEAN", "bool_", "BooleanType"),
+}
+
+
+def duckdb_type(dtype: pl.DataType | type[pl.DataType]) -> str:
+    return TYPE_NAMES[dtype if isinstance(dtype, type) else type(dtype)][0]
+
+
+def arrow_type(dtype: pl.DataType | type[pl.DataType]):
+    import pyarrow as pa
+
+    return getattr(pa, TYPE_NAMES[dtype if isinstance(dtype, type) else type(dtype)][1])()
+
+
+def spark_type(dtype: pl.DataType | type[pl.DataType]):
+    from pyspark.sql import types as T
+
+    return getattr(T, TYPE_NAMES[dtype if isinstance(dtype, type) else type(dtype)][2])()
 
 
 @dataclass(frozen=True)

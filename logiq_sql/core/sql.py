@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import re
+from collections.abc import Iterator
 
 import duckdb
 import sqlglot
@@ -30,9 +32,31 @@ def query_text(relative: str) -> str:
 
 
 @functools.cache
+def _parse(relative: str) -> exp.Expression:
+    return sqlglot.parse_one(query_text(relative), read="duckdb")
+
+
+def parsed(relative: str) -> exp.Expression:
+    """queries/<relative> as a sqlglot tree (DuckDB dialect), parsed once per process; each caller gets its own
+    copy, free to change."""
+    return _parse(relative).copy()
+
+
+@contextlib.contextmanager
+def registered(con: duckdb.DuckDBPyConnection, name: str, frame) -> Iterator[str]:
+    """``frame`` (Polars or Arrow) readable as the table ``name`` on ``con`` inside the block, and unregistered after
+    it, also when the block fails."""
+    con.register(name, frame)
+    try:
+        yield name
+    finally:
+        con.unregister(name)
+
+
+@functools.cache
 def placeholders(relative: str) -> tuple[str, ...]:
     """The ``$name`` parameters a query file uses, in order of first use."""
-    tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+    tree = _parse(relative)
     seen: dict[str, None] = {}
     for node in tree.find_all(exp.Placeholder):
         seen[node.name] = None
@@ -42,13 +66,13 @@ def placeholders(relative: str) -> tuple[str, ...]:
 @functools.cache
 def tables_read(relative: str) -> frozenset[str]:
     """The names of the tables a query file reads (its CTEs' names included: a superset)."""
-    return frozenset(t.name for t in sqlglot.parse_one(query_text(relative), read="duckdb").find_all(exp.Table))
+    return frozenset(t.name for t in _parse(relative).find_all(exp.Table))
 
 
 @functools.cache
 def cte_names(relative: str) -> frozenset[str]:
     """The names of the CTEs a query file defines."""
-    return frozenset(c.alias for c in sqlglot.parse_one(query_text(relative), read="duckdb").find_all(exp.CTE))
+    return frozenset(c.alias for c in _parse(relative).find_all(exp.CTE))
 
 
 def unit_constant(name: str) -> float | None:

@@ -23,6 +23,7 @@ import polars as pl
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import LogiqError
+from logiq_sql.core.sql import registered
 
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
@@ -80,6 +81,6 @@ def as_query(sql: str) -> str:
 
 
 def copy_into_duckdb(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> None:
-    con.register("_engine_copy", frame)
-    con.execute(f"create or replace temp table {table} as select * from _engine_copy")
-    con.unregister("_engine_copy")
+    """``frame`` as the temp table ``table`` of ``con``, replacing one of that name."""
+    with registered(con, "_engine_copy", frame):
+        con.execute(f"create or replace temp table {table} as select * from _engine_copy")

@@ -8,7 +8,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, tables_read
-from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, as_query
+from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, as_query, copy_into_duckdb
 from logiq_sql.storage.db import stored_schema
 
 
@@ -93,9 +93,7 @@ class DuckEngine(Engine):
         return self.con.sql(as_query(sql)).pl()
 
     def register(self, table: str, frame: pl.DataFrame) -> None:
-        self.con.register(f"_{table}", frame)
-        self.con.execute(f"create or replace temp table {table} as select * from _{table}")
-        self.con.unregister(f"_{table}")
+        copy_into_duckdb(self.con, table, frame)
         self._keys[table] = None  # rows from elsewhere: steps reading them are not cached
 
     def select_drives(self) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import duckdb
 import polars as pl
-import sqlglot
 from sqlglot import exp
 
 from logiq_sql.core.errors import arg
 from logiq_sql.core.paths import query_path
-from logiq_sql.core.sql import bind, query_text
+from logiq_sql.core.sql import bind, parsed, registered
 from logiq_sql.engines.base import INPUT_TABLES, PARTITIONED_BY_DRIVE, Engine, EngineError, as_query, copy_into_duckdb
 
 OVERRIDES = "overrides"  # queries/overrides/<engine>/<relative>: an engine's own text of a portable query file
@@ -26,7 +25,7 @@ def inline_parameters(relative: str, values: dict[str, object]) -> exp.Expressio
     """queries/<relative> parsed, with every ``$name`` replaced by its value as a literal node of the sqlglot tree
     (Polars SQL has no placeholders); strings stay quoted literals, so a value can never become SQL."""
     bound = bind(relative, values)
-    tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+    tree = parsed(relative)
 
     def literal(node: exp.Expression) -> exp.Expression:
         if isinstance(node, exp.Placeholder) and node.name in bound:
@@ -70,7 +69,7 @@ def polars_blocker(relative: str) -> str | None:
     if reason is None or override("polars", relative) is not None:
         return None
     if reason == POLARS_MD5:
-        tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+        tree = parsed(relative)
         digests_after(tree)
         return reason if tree.find(exp.MD5) is not None else None
     return reason
@@ -103,11 +102,8 @@ class PolarsEngine(Engine):
     def _md5(self, frame: pl.DataFrame, column: str) -> pl.DataFrame:
         """``column`` replaced by DuckDB's md5 of it, over its distinct values and joined back (row order kept)."""
         keys = frame.select(pl.col(column).unique())
-        self.con.register("_md5_keys", keys)
-        try:
+        with registered(self.con, "_md5_keys", keys):
             digests = self.con.sql(f'select "{column}", md5("{column}") as _md5 from _md5_keys').pl()
-        finally:
-            self.con.unregister("_md5_keys")
         return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
                 .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 

@@ -19,7 +19,8 @@ from sqlglot import exp
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import arg
-from logiq_sql.core.sql import bind, query_text, sql_literal, used_values
+from logiq_sql.core.schema import arrow_type, spark_type
+from logiq_sql.core.sql import bind, parsed, query_text, sql_literal, used_values
 from logiq_sql.engines.base import INPUT_TABLES, PARTITIONED_BY_DRIVE, Engine, EngineError, as_query, copy_into_duckdb
 from logiq_sql.storage import dataset
 
@@ -40,10 +41,10 @@ def spark_statements(relative: str) -> tuple[tuple[str | None, str], ...]:
 
     Spark's optimiser inlines every deterministic CTE at each place it is read (InlineCTE; no setting turns that
     off), so a CTE read three times is planned and computed three times, and the CTEs it reads with it: on
-    relations/ego_lanes.sql, whose CTEs read each other in a diamond, one small nuScenes scene took about 30 s of
-    CPU to optimise and 37 s to run. The engine materialises these CTEs as views first (computed once, as DuckDB
+    relations/ego_lanes.sql, whose CTEs read each other in a diamond, even a small scene took longer to optimise than
+    to run (benchmarks/README.md, "Figures behind the code's comments"). The engine materialises these CTEs as views first (computed once, as DuckDB
     computes a CTE read more than once), so every statement reads each remaining CTE once. Same SQL, same rows."""
-    tree = sqlglot.parse_one(query_text(relative), read="duckdb")
+    tree = parsed(relative)
     with_ = tree.args.get("with_")
     if with_ is None or with_.args.get("recursive"):  # a recursive CTE reads itself: left as it is
         return ((None, spark_text(relative)),)
@@ -85,13 +86,6 @@ def spark_statements(relative: str) -> tuple[tuple[str | None, str], ...]:
 
     shared = [(views[name], statement(ctes[name])) for name in ctes if name in views]
     return (*shared, (None, statement(tree)))
-
-
-def spark_type(dtype: pl.DataType | type[pl.DataType]):
-    from pyspark.sql import types as T
-
-    spark_types = {pl.String: T.StringType, pl.Float64: T.DoubleType, pl.Int64: T.LongType, pl.Boolean: T.BooleanType}
-    return spark_types[dtype if isinstance(dtype, type) else type(dtype)]()
 
 
 def spark_session(master: str | None = None):
@@ -253,8 +247,7 @@ def _derive_per_drive(packed, compute, columns: dict[str, list[tuple[str, str]]]
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    arrow_types = {pl.String: pa.string(), pl.Float64: pa.float64(), pl.Int64: pa.int64(), pl.Boolean: pa.bool_()}
-    out = pa.schema([(c, arrow_types[t if isinstance(t, type) else type(t)]) for c, t in schema.items()])
+    out = pa.schema([(c, arrow_type(t)) for c, t in schema.items()])
     con = duckdb.connect()
     try:
         for name, cols in columns.items():

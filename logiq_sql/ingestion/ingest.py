@@ -18,7 +18,7 @@ import polars as pl
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
-from logiq_sql.core.sql import query_text, recount_coverage
+from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
 from logiq_sql.ingestion.localise import locate
 from logiq_sql.ingestion.readers.av2 import log_folders
@@ -427,9 +427,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
             # order, a track being the rows of one track_no; written once, into tracks
             raw = pl.concat([t for _, t, *_ in accepted])
-            con.register("tracks_raw", raw.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()))
-            con.execute("insert into tracks " + query_text("staging/tracks.sql"))
-            con.unregister("tracks_raw")
+            with registered(con, "tracks_raw", raw.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id())):
+                con.execute("insert into tracks " + query_text("staging/tracks.sql"))
             del raw
         for map_id, drive in maps.items():
             on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]

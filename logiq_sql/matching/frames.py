@@ -13,18 +13,15 @@ returns. So the messages, the accounting of every drive and the matches are thos
 
 from __future__ import annotations
 
-import functools
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import polars as pl
-import sqlglot
-from sqlglot import exp
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError
-from logiq_sql.core.sql import query_text
+from logiq_sql.core.sql import cte_names, tables_read
 from logiq_sql.ingestion.ingest import BATCH_ROWS, write_drives
 from logiq_sql.ingestion.readers.parquet import check_table, check_track_columns, drive_metadata, read_drives
 from logiq_sql.matching.match import MatchResult, match
@@ -70,20 +67,12 @@ def as_lazy(frame: object, name: str) -> pl.LazyFrame:
                      "an Arrow table, in the canonical columns of docs/tables.md.")
 
 
-@functools.cache
-def tables_read(relative: str) -> frozenset[str]:
-    """The tables queries/<relative> reads (its own CTE names left out)."""
-    tree = sqlglot.parse_one(query_text(relative), read="duckdb")
-    ctes = {cte.alias_or_name for cte in tree.find_all(exp.CTE)}
-    return frozenset(t.name for t in tree.find_all(exp.Table)) - ctes
-
-
 def missing_inputs(s: Scenario, given: set[str]) -> str | None:
     """Why scenario ``s`` cannot run on the inputs ``given`` (the map tables that have rows), or None."""
     lacking: dict[str, None] = {}
     reads: dict[str, list[str]] = {}  # query file -> the tables it reads that lack an input
     for relative in [rel for _, rel in phase_steps(s)] + list(s.kpi_queries):
-        for table in sorted(tables_read(relative)):
+        for table in sorted(tables_read(relative) - cte_names(relative)):
             absent = [name for name in BUILT_FROM.get(table, ()) if name not in given]
             if absent:
                 lacking.update(dict.fromkeys(absent))

@@ -25,7 +25,7 @@ import polars as pl
 
 from logiq_sql.core.batching import batches
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
-from logiq_sql.core.sql import render_steps
+from logiq_sql.core.sql import registered, render_steps
 from logiq_sql.engines import check_engine, open_engine
 from logiq_sql.engines.spark_engine import render_for_engine
 from logiq_sql.matching import relations_of
@@ -254,25 +254,22 @@ def select_run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) 
 
 def match_batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_rows: int) -> list[list[str]]:
     """``ids`` (sorted) cut into consecutive batches of at most ``batch_rows`` track rows, or one drive each."""
-    con.register("_batch_ids", pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String}))
-    sizes = con.sql("select drive_id, rows_read - rows_rejected as n from drive_inputs "
-                    "where drive_id in (select drive_id from _batch_ids) order by drive_id").pl()
-    con.unregister("_batch_ids")
+    with registered(con, "_batch_ids", pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String})):
+        sizes = con.sql("select drive_id, rows_read - rows_rejected as n from drive_inputs "
+                        "where drive_id in (select drive_id from _batch_ids) order by drive_id").pl()
     return batches(sizes.iter_rows(), batch_rows)
 
 
 def drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.DataFrame, ego: str,
                      range_m: float) -> pl.DataFrame:
     """The drives of the run whose latest run of ``s`` differs in parameters, ego mode or relation range."""
-    con.register("_wanted", run_drives)
-    todo = con.sql(
-        "select w.drive_id from _wanted as w where not exists (select 1 from drive_scenarios as d "
-        "join match_runs as r on r.run_id = d.run_id and r.scenario = d.scenario "
-        "where d.drive_id = w.drive_id and d.scenario = $s and d.params_hash = $h and r.ego_mode = $ego "
-        "and r.relation_range_m = $range) order by w.drive_id",
-        params={"s": s.name, "h": s.params_hash(), "ego": ego, "range": range_m}).pl()
-    con.unregister("_wanted")
-    return todo
+    with registered(con, "_wanted", run_drives):
+        return con.sql(
+            "select w.drive_id from _wanted as w where not exists (select 1 from drive_scenarios as d "
+            "join match_runs as r on r.run_id = d.run_id and r.scenario = d.scenario "
+            "where d.drive_id = w.drive_id and d.scenario = $s and d.params_hash = $h and r.ego_mode = $ego "
+            "and r.relation_range_m = $range) order by w.drive_id",
+            params={"s": s.name, "h": s.params_hash(), "ego": ego, "range": range_m}).pl()
 
 
 def read_result(con: duckdb.DuckDBPyConnection, run_drives: pl.DataFrame, names: list[str]) -> MatchResult:

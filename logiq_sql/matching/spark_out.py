@@ -30,6 +30,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
+from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
 from logiq_sql.matching.runner import coverage_buckets
 from logiq_sql.spec.contract import sample_columns
@@ -66,7 +67,7 @@ class SparkResults:
         as an int, say), then ``extra``."""
         from pyspark.sql import functions as F
 
-        from logiq_sql.engines.spark_engine import spark_type
+        from logiq_sql.core.schema import spark_type
 
         t = OUTPUT_TABLES[table]
         return df.select(*[F.col(c.name).cast(spark_type(c.dtype)).alias(c.name) for c in t.columns], *extra)
@@ -212,7 +213,8 @@ class SparkResults:
         """The histograms over every coverage sample under OUT (queries/coverage/histogram.sql on Spark)."""
         from pyspark.sql import types as T
 
-        from logiq_sql.engines.spark_engine import spark_text, spark_type
+        from logiq_sql.core.schema import spark_type
+        from logiq_sql.engines.spark_engine import spark_text
 
         spark = self.spark
         for t in (db.COVERAGE_SAMPLES, db.COVERAGE_BUCKETS):
@@ -234,7 +236,7 @@ def attach_outputs(con: duckdb.DuckDBPyConnection, out: str | Path, scenarios: l
         files = out / name
         if not files.is_dir() or not any(files.rglob("*.parquet")):
             continue
-        source = (f"read_parquet('{_sql_string(str(files.resolve()))}/**/*.parquet', hive_partitioning = true, "
+        source = (f"read_parquet({sql_literal(str(files.resolve()) + '/**/*.parquet')}, hive_partitioning = true, "
                   "union_by_name = true" + "".join(
                       ", hive_types = {" + ", ".join(f"'{k}': varchar" for k in keys) + "}" if keys else "") + ")")
         have = [r[0] for r in con.execute(f"describe select * from {source}").fetchall()]
@@ -250,9 +252,5 @@ def attach_outputs(con: duckdb.DuckDBPyConnection, out: str | Path, scenarios: l
         if kind.get(name) == "BASE TABLE":
             con.execute(f"drop table main.{name}")
         con.execute(f"create or replace view main.{name} as select {', '.join(columns)} from {source}")
-        con.execute(f"comment on view main.{name} is '{_sql_string('A view over the Parquet a Spark run wrote in ' + str(files))}'")
+        con.execute(f"comment on view main.{name} is {sql_literal('A view over the Parquet a Spark run wrote in ' + str(files))}")
     con.execute(db.DRIVES_VIEW)
-
-
-def _sql_string(text: str) -> str:
-    return text.replace("'", "''")

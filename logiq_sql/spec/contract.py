@@ -13,13 +13,11 @@ scenario's earlier steps (a phase query may read ``scenario_frames``).
 
 from __future__ import annotations
 
-import functools
-
 import sqlglot
 from sqlglot import exp
 
 from logiq_sql.core.errors import did_you_mean
-from logiq_sql.core.sql import placeholders, query_text, shown_path, unit_constant
+from logiq_sql.core.sql import parsed, placeholders, shown_path, unit_constant
 from logiq_sql.spec.scenario import Scenario
 
 # the columns every phase query returns (one row per pair and frame; rows where the phase does not hold may be
@@ -88,15 +86,10 @@ def _columns(node: exp.Expression, ctes: dict[str, exp.Expression],
     return frozenset(out)
 
 
-@functools.cache
-def _tree(relative: str) -> exp.Expression:
-    return sqlglot.parse_one(query_text(relative), read="duckdb")
-
-
 def output_columns(relative: str, tables: tuple[tuple[str, frozenset[str] | None], ...] = ()) -> frozenset[str] | None:
     """The columns query ``relative`` returns (None when they cannot be told from its text); ``tables`` gives the
     columns of the earlier steps it reads with ``*``."""
-    return _columns(_tree(relative), {}, dict(tables))
+    return _columns(parsed(relative), {}, dict(tables))
 
 
 def _missing(have: frozenset[str] | None, wanted: list[str], where: str, what: str) -> list[str]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from logiq_sql.core import units
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
-from logiq_sql.core.schema import OBJECT_KINDS
+from logiq_sql.core.schema import EGO_KINDS, OBJECT_KINDS
 from logiq_sql.spec.contract import check_scenario
 from logiq_sql.spec.scenario import MAX_PHASES, Scenario, ScenarioPath, list_scenarios, load_scenario
 
@@ -20,7 +20,6 @@ DEFAULT_LANE_TOLERANCE_M = 1.0  # the spec's default lane_calculation_tolerance_
 DEFAULT_MIN_CLOSING_SPEED_MPS = 0.1  # logiq_base_vehicle_scenario's min_closing_speed, for scenarios without it
 ALL_KINDS_CSV = "," + ",".join(OBJECT_KINDS) + ","  # $relation_kinds_csv when every kind is related (relations_of)
 # the kinds that can be under test (--ego auto/all/every:N); --ego-kinds narrows them
-EGO_KINDS = ("vehicle", "truck", "bus", "motorcycle", "emergency_vehicle")
 EGO_KIND_ALIASES = {"car": "vehicle"}
 RELATION_STEPS = (
     ("lane_line", "relations/lane_line.sql"),

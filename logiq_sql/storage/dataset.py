@@ -26,6 +26,7 @@ import duckdb
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, arg
+from logiq_sql.core.sql import sql_literal
 
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
 MARKER = "_logiq_sql_dataset"  # written at the top of a dataset: what attach and --engine spark check
@@ -47,9 +48,6 @@ def is_dataset(folder: str | Path) -> bool:
     return (Path(folder) / MARKER).is_file()
 
 
-def _sql_string(text: str) -> str:
-    return text.replace("'", "''")
-
 
 def write(con: duckdb.DuckDBPyConnection, folder: str | Path, part: str) -> Path:
     """Add the canonical tables of ``con`` to the dataset ``folder`` under the file name ``part``: the drives it
@@ -70,7 +68,7 @@ def write(con: duckdb.DuckDBPyConnection, folder: str | Path, part: str) -> Path
         if not con.execute(f"select count(*) from {table.name}").fetchone()[0]:
             continue
         pattern = f"{part}-{{i}}" if key == "drive_id" else "map-{i}"
-        con.execute(f"copy (select {', '.join(table.column_names)} from {table.name}) to '{_sql_string(str(target))}' "
+        con.execute(f"copy (select {', '.join(table.column_names)} from {table.name}) to {sql_literal(str(target))} "
                     f"(format parquet, partition_by ({key}), filename_pattern '{pattern}', overwrite_or_ignore)")
     return folder
 
@@ -99,19 +97,12 @@ def attach(con: duckdb.DuckDBPyConnection, folder: str | Path) -> None:
         files = folder / table.name
         cols = ", ".join(table.column_names)
         if any(files.rglob("*.parquet")):
-            source = (f"read_parquet('{_sql_string(str(files))}/**/*.parquet', hive_partitioning = true, "
+            source = (f"read_parquet({sql_literal(str(files) + '/**/*.parquet')}, hive_partitioning = true, "
                       f"hive_types = {{'{partition_key(table)}': varchar}})")
         else:  # nothing of this table yet (no traffic lights, say): an empty view of the right columns
-            source = ("(select " + ", ".join(f"cast(null as {_DUCK[type(c.dtype)]}) as {c.name}"
+            source = ("(select " + ", ".join(f"cast(null as {schema.duckdb_type(c.dtype)}) as {c.name}"
                                             for c in table.columns) + " where false)")
         con.execute(f"create or replace view main.{table.name} as select {cols} from {source}")
-        con.execute(f"comment on view main.{table.name} is {_quoted(table.doc + ' (a view over ' + str(files) + ')')}")
+        con.execute(f"comment on view main.{table.name} is {sql_literal(table.doc + ' (a view over ' + str(files) + ')')}")
         for c in table.columns:
-            con.execute(f"comment on column main.{table.name}.{c.name} is {_quoted(c.doc)}")
-
-
-def _quoted(text: str) -> str:
-    return "'" + _sql_string(text) + "'"
-
-
-_DUCK = {type(schema.S): "varchar", type(schema.F): "double", type(schema.I): "bigint", type(schema.B): "boolean"}
+            con.execute(f"comment on column main.{table.name}.{c.name} is {sql_literal(c.doc)}")

@@ -15,7 +15,8 @@ import polars as pl
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import DiskFullError, FileBusyError, InputError, LogiqError
-from logiq_sql.core.schema import Column, Table
+from logiq_sql.core.schema import Column, Table, duckdb_type
+from logiq_sql.core.sql import registered, sql_literal
 from logiq_sql.storage import locking
 
 S, F, I, B = pl.String(), pl.Float64(), pl.Int64(), pl.Boolean()
@@ -165,7 +166,6 @@ STEP_CACHE = Table(
 OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
 TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
 
-_DUCK_TYPES = {pl.String(): "VARCHAR", pl.Float64(): "DOUBLE", pl.Int64(): "BIGINT", pl.Boolean(): "BOOLEAN"}
 
 DRIVES_VIEW = """
 create or replace view drives as
@@ -202,19 +202,15 @@ DRIVES_DOC = {
 }
 
 
-def _quote(text: str) -> str:
-    return "'" + text.replace("'", "''") + "'"
-
-
 def comment_column(con: duckdb.DuckDBPyConnection, table: str, column: str, doc: str) -> None:
     """Store ``doc`` as the DuckDB comment of ``table.column`` (names are ours, the text is quoted)."""
-    con.execute(f"comment on column {table}.{column} is {_quote(doc)}")
+    con.execute(f"comment on column {table}.{column} is {sql_literal(doc)}")
 
 
 def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Column, ...] = ()) -> None:
     columns = (*table.columns, *extra)
     cols = ",\n    ".join(
-        f"{c.name} {_DUCK_TYPES[c.dtype]}{'' if c.nullable else ' NOT NULL'}" for c in columns
+        f"{c.name} {duckdb_type(c.dtype)}{'' if c.nullable else ' NOT NULL'}" for c in columns
     )
     con.execute(f"create table if not exists {table.name} (\n    {cols}\n)")
     # a file written by an earlier version gains the nullable columns added since (NULL in its old rows)
@@ -222,10 +218,10 @@ def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Colu
         "select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' and database_name = current_database()", {"t": table.name}).fetchall()}
     for c in columns:
         if c.name not in have and c.nullable:
-            con.execute(f"alter table {table.name} add column {c.name} {_DUCK_TYPES[c.dtype]}")
-    con.execute(f"comment on table {table.name} is {_quote(table.doc)}")
+            con.execute(f"alter table {table.name} add column {c.name} {duckdb_type(c.dtype)}")
+    con.execute(f"comment on table {table.name} is {sql_literal(table.doc)}")
     for c in columns:
-        con.execute(f"comment on column {table.name}.{c.name} is {_quote(c.doc)}")
+        con.execute(f"comment on column {table.name}.{c.name} is {sql_literal(c.doc)}")
 
 
 # columns that mean the same in every derived table
@@ -263,12 +259,12 @@ def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, d
                     column_docs: dict[str, str], fallback: str) -> None:
     """Comment a table the matcher derives (relations, ...): its columns from ``column_docs``, the shared keys,
     else ``fallback`` (where the definition is)."""
-    con.execute(f"comment on table {qualified} is {_quote(doc)}")
+    con.execute(f"comment on table {qualified} is {sql_literal(doc)}")
     columns = con.execute("select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' "
                           "and database_name = current_database()", {"t": name}).fetchall()
     for (col,) in columns:
         text = column_docs.get(col) or KEY_DOCS.get(col) or fallback
-        con.execute(f"comment on column {qualified}.{col} is {_quote(text)}")
+        con.execute(f"comment on column {qualified}.{col} is {sql_literal(text)}")
 
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
@@ -337,11 +333,11 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     for table in TABLES:
         create_table(con, table)
     con.execute(DRIVES_VIEW)
-    con.execute("comment on view drives is " + _quote(
+    con.execute("comment on view drives is " + sql_literal(
         "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
     inherited = {c.name: c.doc for c in schema.DRIVE_INPUTS.columns}
     for (col,) in con.execute("select column_name from duckdb_columns() where table_name = 'drives'").fetchall():
-        con.execute(f"comment on column drives.{col} is {_quote(DRIVES_DOC.get(col) or inherited[col])}")
+        con.execute(f"comment on column drives.{col} is {sql_literal(DRIVES_DOC.get(col) or inherited[col])}")
     return con
 
 
@@ -510,10 +506,9 @@ def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> N
     """Append a Polars frame to a table by column name."""
     if frame.is_empty():
         return
-    con.register("_frame_to_insert", frame)
     cols = ", ".join(frame.columns)
-    con.execute(f"insert into {table} ({cols}) select {cols} from _frame_to_insert")
-    con.unregister("_frame_to_insert")
+    with registered(con, "_frame_to_insert", frame):
+        con.execute(f"insert into {table} ({cols}) select {cols} from _frame_to_insert")
 
 
 def docs_markdown() -> str:
@@ -523,7 +518,7 @@ def docs_markdown() -> str:
            "this text as a DuckDB comment: `select * from duckdb_columns() where comment is not null`.", ""]
     for table in (*TABLES,):
         out += [f"## `{table.name}`", "", table.doc, "", "| column | type | meaning |", "|---|---|---|"]
-        out += [f"| `{c.name}` | {_DUCK_TYPES[c.dtype].lower()} | {c.doc} |" for c in table.columns]
+        out += [f"| `{c.name}` | {duckdb_type(c.dtype).lower()} | {c.doc} |" for c in table.columns]
         out.append("")
     out += ["## `kpis`", "",
             "One row per match: `match_id`, `scenario`, then every KPI and sampled coverage value of the scenarios "
