@@ -10,6 +10,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 from logiq_sql.core.errors import DiskFullError, FileBusyError, LogiqError
+from logiq_sql.core.formats import FORMATS, formats_help
 from logiq_sql.spec.plan import DEFAULT_RELATION_RANGE
 
 # exit codes a scheduler can act on
@@ -372,12 +373,7 @@ def add_ingest(sub) -> None:
     p = _command(sub, "ingest", cmd_ingest, "read drives into a DuckDB file",
                  "Read drives (files or folders of them) into the canonical tables of a DuckDB file. Re-ingesting a "
                  "drive replaces it.")
-    p.add_argument("format", choices=["commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi"],
-                   help="commonroad: CommonRoad XML (.xml, .xml.gz); scenarionet: ScenarioNet .pkl; "
-                        "parquet: canonical tables (see docs/tables.md); sumo: SUMO run folders (docs/sumo.md); "
-                        "av2: Argoverse 2 sensor-log and motion-forecasting folders; opendrive: an .xodr map with "
-                        "tracks.parquet beside it; osi: ASAM OSI traces (.osi, .mcap), with an .xodr beside them "
-                        "as the map (docs/formats.md)")
+    p.add_argument("format", choices=list(FORMATS), help=formats_help())
     p.add_argument("paths", nargs="+", metavar="PATH", help="files or folders")
     _add_db(p, "DuckDB file to create or update")
     p.add_argument("--dataset", metavar="DIR", help="instead of --db: write the canonical tables as Parquet "

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import polars as pl
 
+from logiq_sql.core.formats import FORMATS
+
 # The evaluation_object_kind values of the spec, in the spec's order.
 OBJECT_KINDS: tuple[str, ...] = (
     "object", "person", "cyclist", "vehicle", "truck", "trailer", "fod", "animal", "sign", "bus",
@@ -99,8 +101,8 @@ DRIVE_INPUTS = Table(
     "One row per drive that ingest saw, accepted or rejected, with where it came from.",
     (
         Column("drive_id", S, "Unique id of the drive in this database.", False),
-        Column("source_format", S, "The reader: commonroad, scenarionet, parquet, sumo or av2 (frames: given to "
-                               "match_frames, in memory).", False),
+        Column("source_format", S, f"The reader: {', '.join(FORMATS)} (frames: given to match_frames, in "
+                               "memory).", False),
         Column("source_path", S, "File the drive was read from.", False),
         Column("map_id", S, "Key into the map tables (lanes, junctions, ...); NULL when the source has no map."),
         Column("dt_s", F, "Sample period in seconds."),

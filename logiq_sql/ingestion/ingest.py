@@ -18,25 +18,20 @@ import polars as pl
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
+from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
 from logiq_sql.ingestion.localise import locate
-from logiq_sql.ingestion.readers.av2 import log_folders
 from logiq_sql.ingestion.readers.base import DriveData
-from logiq_sql.ingestion.readers.sumo import run_folders
 from logiq_sql.storage import db, step_cache
 from logiq_sql.storage.store import PERSISTED
 
-FORMATS = ("commonroad", "scenarionet", "parquet", "sumo", "av2", "opendrive", "osi")
 
-
-_SUFFIXES = {"commonroad": (".xml", ".xml.gz"), "scenarionet": (".pkl",), "parquet": (".parquet",),
-             "opendrive": (".xodr",), "osi": (".osi", ".mcap")}
-
-
-def _reader(fmt: str) -> Callable[[Path], Iterable[DriveData]]:
+def reader_function(fmt: str, name: str | None = None) -> Callable:
+    """The function ``name`` (default ``read_<fmt>``) of the format's reader, logiq_sql/ingestion/readers/<fmt>.py
+    (core/formats.py): imported when first used, so a run loads only the reader it needs."""
     module = importlib.import_module(f"logiq_sql.ingestion.readers.{fmt}")
-    return getattr(module, f"read_{fmt}")
+    return getattr(module, name or f"read_{fmt}")
 
 
 @dataclass
@@ -54,16 +49,15 @@ class IngestSummary:
 def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     """Files to read: each path as given, or the matching files inside a folder (sorted); for sumo, run folders;
     for av2, log and scenario folders."""
+    source = FORMATS[fmt]
     out: list[Path] = []
     for p in map(Path, paths):
         if not p.exists():
             raise InputError(f"{p}: no such file or folder.")
-        if fmt == "sumo":
-            out += run_folders(p)
-        elif fmt == "av2":
-            out += log_folders(p)
-        elif p.is_dir() and not (fmt == "parquet" and (p / "tracks.parquet").exists()):
-            out += sorted(f for f in p.rglob("*") if f.is_file() and f.name.endswith(_SUFFIXES[fmt]))
+        if source.folders:
+            out += reader_function(fmt, source.folders)(p)
+        elif p.is_dir() and not (source.drive_folder_marker and (p / source.drive_folder_marker).exists()):
+            out += sorted(f for f in p.rglob("*") if f.is_file() and f.name.endswith(source.suffixes))
         else:
             out.append(p)
     return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
@@ -79,7 +73,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
     readers when every file is read (``db.open_for_write``; ``wait_s``: how long to wait for another writer)."""
     if fmt not in FORMATS:
         raise InputError(f"unknown format '{fmt}'.{did_you_mean(fmt, FORMATS)} Formats: {', '.join(FORMATS)}.")
-    reader = _reader(fmt)
+    reader = reader_function(fmt)
     files = expand(fmt, paths)
     summary = IngestSummary()
     batch: list[DriveData] = []
