@@ -8,7 +8,8 @@ import duckdb
 import pytest
 
 from logiq_sql.cli import main
-from logiq_sql.storage.db import connect, docs_markdown
+from logiq_sql.storage.db import connect
+from logiq_sql.storage.docs import docs_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -168,7 +168,7 @@ def _parameters(path: Path) -> set[str]:
 def _side_tables():
     from logiq_sql.core.schema import TRACKS
     from logiq_sql.matching.encroachment import ENCROACHMENTS_SCHEMA
-    from logiq_sql.storage.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCHES
+    from logiq_sql.storage.tables import COVERAGE_BUCKETS, COVERAGE_SAMPLES, MATCHES
 
     return {"run_drives": {"drive_id": pl.String}, "tracks_raw": TRACKS.polars_schema,
             "encroachments": ENCROACHMENTS_SCHEMA, "coverage_samples": COVERAGE_SAMPLES.polars_schema,

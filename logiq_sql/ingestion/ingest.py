@@ -23,7 +23,7 @@ from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
 from logiq_sql.ingestion.localise import locate
 from logiq_sql.ingestion.readers.base import DriveData
-from logiq_sql.storage import db, step_cache
+from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
 
 
@@ -431,8 +431,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
                              "where drive_id in (select drive_id from _on_map)").pl()
             with stage("localisation"):
                 located = locate(staged, drive.lanes)
-            db.insert(con, "track_lanes", located)
-        db.insert(con, "drive_inputs", pl.DataFrame([{
+            tables.insert(con, "track_lanes", located)
+        tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
             "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
             "rows_read": d.rows_read or d.tracks.height, "rows_rejected": d.rows_rejected + dropped,
@@ -449,7 +449,7 @@ def _insert_all(con: duckdb.DuckDBPyConnection, table: str, frames: list[pl.Data
     """Append the rows of every frame to ``table`` in one insert."""
     frames = [f for f in frames if not f.is_empty()]
     if frames:
-        db.insert(con, table, pl.concat(frames, how="diagonal_relaxed"))
+        tables.insert(con, table, pl.concat(frames, how="diagonal_relaxed"))
 
 
 def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> None:
@@ -464,7 +464,7 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         con.register("_rejected", pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String}))
         step_cache.set_versions(con, "select drive_id from _rejected")
         con.unregister("_rejected")
-        db.insert(con, "drive_inputs", pl.DataFrame([{
+        tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
             "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",

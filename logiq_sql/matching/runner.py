@@ -24,8 +24,8 @@ from logiq_sql.spec.plan import (
     relation_kinds_csv,
 )
 from logiq_sql.spec.scenario import Scenario
-from logiq_sql.storage.db import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 from logiq_sql.storage.store import ScenarioOutput
+from logiq_sql.storage.tables import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 
 # what run_scenario writes besides the phase steps' tables: a query reading one of them depends on the scenario
 SCENARIO_TABLES = ("scenario_matches", "_kpi", "match_samples", "_sample")

@@ -36,7 +36,7 @@ from logiq_sql.matching.runner import coverage_buckets
 from logiq_sql.spec.contract import sample_columns
 from logiq_sql.spec.plan import IDENTIFY_QUERY, SAMPLES_QUERY, phase_steps
 from logiq_sql.spec.scenario import Scenario
-from logiq_sql.storage import db
+from logiq_sql.storage import tables
 from logiq_sql.storage.store import PERSISTED, STORED_ALWAYS
 
 # the partition columns of each table under OUT (the folders' names; hive partitions)
@@ -44,7 +44,7 @@ PARTITIONS = {**dict.fromkeys(("matches", "match_phases", "kpis", "coverage_samp
                               ("scenario", "drive_id")),
               "coverage_buckets": ("scenario",), "match_runs": ("run_id",), "coverage": (),
               **dict.fromkeys(PERSISTED, ("drive_id",))}
-OUTPUT_TABLES = {t.name: t for t in db.OUTPUT_TABLES}
+OUTPUT_TABLES = {t.name: t for t in tables.OUTPUT_TABLES}
 
 
 class SparkResults:
@@ -202,7 +202,7 @@ class SparkResults:
                      "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": self.ego, "drives": drives,
                      "matches": found, "relation_range_m": self.range_m}
                     for s, drives, found in self.totals.values()]
-            record = pl.DataFrame(rows, schema=db.MATCH_RUNS.polars_schema)
+            record = pl.DataFrame(rows, schema=tables.MATCH_RUNS.polars_schema)
             self.spark.createDataFrame(record.to_arrow(compat_level=pl.CompatLevel.oldest())).coalesce(1) \
                 .write.mode("append").partitionBy("run_id").parquet(f"{self.out}/match_runs")
         with stage("coverage"):
@@ -217,7 +217,7 @@ class SparkResults:
         from logiq_sql.engines.spark_engine import spark_text
 
         spark = self.spark
-        for t in (db.COVERAGE_SAMPLES, db.COVERAGE_BUCKETS):
+        for t in (tables.COVERAGE_SAMPLES, tables.COVERAGE_BUCKETS):
             struct = T.StructType([T.StructField(c.name, spark_type(c.dtype), True) for c in t.columns])
             written = self._path(f"{self.out}/{t.name}")
             df = (spark.read.schema(struct).parquet(f"{self.out}/{t.name}").select(*t.column_names)
@@ -231,7 +231,7 @@ def attach_outputs(con: duckdb.DuckDBPyConnection, out: str | Path, scenarios: l
     """Views in ``con`` over the tables under ``out`` (replacing the file's empty tables), with the columns a
     local run's tables have; ``kpis`` has every KPI column found, those of ``scenarios`` first, in their order."""
     out = Path(out)
-    columns_of = {t.name: list(t.column_names) for t in db.OUTPUT_TABLES}
+    columns_of = {t.name: list(t.column_names) for t in tables.OUTPUT_TABLES}
     for name, keys in PARTITIONS.items():
         files = out / name
         if not files.is_dir() or not any(files.rglob("*.parquet")):
@@ -253,4 +253,4 @@ def attach_outputs(con: duckdb.DuckDBPyConnection, out: str | Path, scenarios: l
             con.execute(f"drop table main.{name}")
         con.execute(f"create or replace view main.{name} as select {', '.join(columns)} from {source}")
         con.execute(f"comment on view main.{name} is {sql_literal('A view over the Parquet a Spark run wrote in ' + str(files))}")
-    con.execute(db.DRIVES_VIEW)
+    con.execute(tables.DRIVES_VIEW)

@@ -28,7 +28,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.errors import LogiqError
-from logiq_sql.storage import db
+from logiq_sql.storage import tables
 from logiq_sql.storage.db import stored_schema
 
 CACHE_FORMAT = "1"  # bump when what a key covers changes
@@ -225,7 +225,7 @@ class StepCache:
             # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
             if data not in cache_tables(con):
                 con.execute(f"create table {stored}.{data} as select * from temp.main.{table} limit 0")
-                db.comment_derived(con, f"{stored}.{data}", data,
+                tables.comment_derived(con, f"{stored}.{data}", data,
                                    f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
                                    "As the step's query returns it (step_cache.step names the query; its header "

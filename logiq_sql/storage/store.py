@@ -13,8 +13,9 @@ import polars as pl
 from logiq_sql.core.sql import query_text, recount_coverage
 from logiq_sql.core.timing import stage
 from logiq_sql.spec.scenario import Scenario
-from logiq_sql.storage import db
-from logiq_sql.storage.db import MATCH_PHASES, MATCHES, stored_schema
+from logiq_sql.storage import tables
+from logiq_sql.storage.db import stored_schema
+from logiq_sql.storage.tables import MATCH_PHASES, MATCHES
 
 # kept in the file for analysts (and for rendered SQL, which reads encroachments), replaced per drive, with the
 # file whose header documents their columns
@@ -59,7 +60,7 @@ def ensure_kpi_columns(con: duckdb.DuckDBPyConnection, scenarios: list[Scenario]
         for column, (_unit, sql_type, doc) in s.metric_columns().items():
             if column not in have:
                 con.execute(f"alter table kpis add column {column} {sql_type}")
-                db.comment_column(con, "kpis", column, doc)
+                tables.comment_column(con, "kpis", column, doc)
                 have.add(column)
 
 
@@ -105,26 +106,26 @@ def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: 
             con.execute("delete from coverage_buckets where scenario = $s", {"s": s.name})
             con.execute("delete from drive_scenarios where scenario = $s and drive_id in "
                         "(select drive_id from run_drives)", {"s": s.name})
-            db.insert(con, "matches", out.matches.with_columns(run_id=pl.lit(run_id)).select(MATCHES.column_names))
-            db.insert(con, "match_phases", out.phases.select(MATCH_PHASES.column_names))
-            db.insert(con, "kpis", out.kpis)
-            db.insert(con, "coverage_samples", out.samples)
-            db.insert(con, "coverage_buckets", out.buckets)
-            db.insert(con, "drive_scenarios",
+            tables.insert(con, "matches", out.matches.with_columns(run_id=pl.lit(run_id)).select(MATCHES.column_names))
+            tables.insert(con, "match_phases", out.phases.select(MATCH_PHASES.column_names))
+            tables.insert(con, "kpis", out.kpis)
+            tables.insert(con, "coverage_samples", out.samples)
+            tables.insert(con, "coverage_buckets", out.buckets)
+            tables.insert(con, "drive_scenarios",
                       drive_status(con, run_drives, out.matches, out.egos, s).with_columns(run_id=pl.lit(run_id)))
             # one row per run and scenario: a later batch of the same run adds its drives and matches
             (before,) = con.execute(
                 "select min(started_at), coalesce(sum(drives), 0), coalesce(sum(matches), 0) from match_runs "
                 "where run_id = $r and scenario = $s", {"r": run_id, "s": s.name}).fetchall()
             con.execute("delete from match_runs where run_id = $r and scenario = $s", {"r": run_id, "s": s.name})
-            db.insert(con, "match_runs", pl.DataFrame([{
+            tables.insert(con, "match_runs", pl.DataFrame([{
                 "run_id": run_id, "started_at": before[0] or started, "scenario": s.name,
                 "scenario_version": s.version, "params_hash": s.params_hash(),
                 "params_json": json.dumps(s.bindings(), sort_keys=True),
                 "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
                 "drives": before[1] + run_drives.height, "matches": before[2] + out.matches.height,
                 "relation_range_m": range_m,
-            }], schema=db.MATCH_RUNS.polars_schema))
+            }], schema=tables.MATCH_RUNS.polars_schema))
         with stage("coverage"):
             recount_coverage(con)
         con.execute("commit")
@@ -137,10 +138,10 @@ def describe_persisted(con: duckdb.DuckDBPyConnection, stored: str, table: str) 
     """Table and column comments for a kept table, from the header of the file that defines it."""
     source = PERSISTED[table]
     if source.endswith(".sql"):
-        grain, docs = db.header_docs(query_text(source.removeprefix("queries/")))
+        grain, docs = tables.header_docs(query_text(source.removeprefix("queries/")))
     else:
         grain, docs = ENCROACHMENTS_GRAIN, {}
-    db.comment_derived(con, f"{stored}.{table}", table,
+    tables.comment_derived(con, f"{stored}.{table}", table,
                        f"Kept from the last match run of each drive: {grain} ({source}, docs/semantics.md).",
                        docs, f"See the header of {source} and docs/semantics.md.")
 
