@@ -388,22 +388,22 @@ def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
     assert at_start.height == labels.height
     # the ego turns left through the signalised junction (its internal lanes are those of a dir="l" connection)
     assert at_start["e_dir"].is_in(["l", "L"]).all() and at_start["e_kind"].eq("vehicle").all()
-    # a vehicle from another incoming edge; both within 10 m of their stop lines, box centre by lane position
+    # a vehicle from another incoming edge; both within 10 m of their stop lines, box front by lane position
     assert at_start["a_kind"].eq("vehicle").all()
     assert (at_start["a_from_edge"] != at_start["e_from_edge"]).all()
     for who in ("e", "a"):
-        assert at_start[f"{who}_centre_m"].is_between(-10 - 1e-6, 10 + 1e-6).all()
+        assert at_start[f"{who}_front_m"].is_between(-10 - 1e-6, 10 + 1e-6).all()
     # the ego is stopped (<= 2 kph) on green: character link_index of SUMO's state string is G or g
     assert (at_start["e_speed_mps"] <= 2 / 3.6 + 1e-9).all()
     signal = at_start.select(pl.col("state").str.slice(pl.col("e_link_index"), 1))["state"]
     assert signal.is_in(["G", "g"]).all()
-    # the interval ends at the ego's last step with its centre inside the junction; it then leaves, after the actor
+    # the interval ends at the ego's last step with its front inside the junction; it then leaves, after the actor
     span = rows.group_by("vehicle_id").agg(first_s=pl.col("t_s").min(), last_s=pl.col("t_s").max())
     at_end = labels.join(ego, left_on=["ego_id", "end_s"], right_on=["vehicle_id", "t_s"])
     after = labels.join(ego, left_on=["ego_id", (pl.col("end_s") + 0.1).round(1)], right_on=["vehicle_id", "t_s"])
     assert at_end.height == after.height == labels.height
-    assert ((at_end["e_centre_m"] >= 0) & (at_end["e_centre_m"] < at_end["e_total_m"])).all()
-    assert (after["e_centre_m"] >= after["e_total_m"]).all()
+    assert ((at_end["e_front_m"] >= 0) & (at_end["e_front_m"] < at_end["e_total_m"])).all()
+    assert (after["e_front_m"] >= after["e_total_m"]).all()
     out = rows.filter(pl.col("front_m") >= pl.col("total_m")).group_by("vehicle_id").agg(out_s=pl.col("t_s").min())
     order = labels.join(out, left_on="ego_id", right_on="vehicle_id").join(
         out, left_on="actor_id", right_on="vehicle_id", suffix="_actor")

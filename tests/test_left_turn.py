@@ -49,14 +49,17 @@ def test_one_match_with_four_phases_in_order(base):
     starts, ends = phases["start_s"].to_list(), phases["end_s"].to_list()
     for end, nxt in zip(ends, starts[1:], strict=False):
         assert nxt == pytest.approx(end + 0.1)  # each phase takes over right after the one before
-    # stop_in_green_light: the ego stands (from 4 s) and the car is within 10 m of its junction start (4-6 s),
-    # until the car enters the junction at 5 s, when sut_yield_to_npc begins
-    assert starts[0] == pytest.approx(4.0, abs=0.11)
-    assert starts[1] == pytest.approx(5.0, abs=0.11)
-    # other_car_finishes_crossing_junction lasts until the car is 5 m past the junction end: s = 25 m, 7.5 s
-    assert ends[2] == pytest.approx(7.5, abs=0.11)
-    # sut_turn_left ends when the ego leaves the junction: 18.46 m of arc after it starts at 9 s, 2 m back
-    leave = 9 + 3 + (18.46 + 2 - 9) / 6
+    # stop_in_green_light: the ego stands (its speed over 0.5 s under 2 kph from 3.8 s) and the car's front is
+    # within 10 m of its junction start (from 3.8 s), until the car's front enters the junction at 4.8 s (its
+    # centre 2.25 m behind), when sut_yield_to_npc begins
+    assert starts[0] == pytest.approx(3.8, abs=0.11)
+    assert starts[1] == pytest.approx(4.8, abs=0.11)
+    # other_car_finishes_crossing_junction lasts until the car's front is 5 m past the junction end: centre s =
+    # 22.75 m, 7.3 s
+    assert ends[2] == pytest.approx(7.3, abs=0.11)
+    # sut_turn_left ends when the ego's front leaves the junction: 18.46 - 2.25 m of arc after it starts at 9 s,
+    # 2 m back
+    leave = 9 + 3 + (18.46 - 2.25 + 2 - 9) / 6
     assert ends[3] == pytest.approx(leave, abs=0.11)
     assert (m["start_s"], m["end_s"]) == (starts[0], ends[3])
 
@@ -252,3 +255,18 @@ def test_an_oncoming_car_s_jitter_does_not_widen_its_path(tmp_path):
             got[name] = con.execute("select ego_occupancy_from_s_m from encroachments").fetchone()[0]
         assert result.matches.select("actor_id").rows() == [("car",)], name
     assert abs(got["jitter"] - got["clean"]) < 0.3, got
+
+
+def test_junction_offsets_are_measured_at_the_front(tmp_path):
+    """A car waiting second in a queue, its front 9.5 m before the stop line (its centre 11.75 m), is near the
+    junction start: the spec's offsets are the distance from the actor to the junction start, the gap ahead of
+    its front, where a driver stops at the line (docs/semantics.md, "Offsets"). Measured at the centre it was
+    11.75 m away and never stopped near the junction, so the yield was lost. (The junction start is placed
+    halfway between the samples either side of it: up to 0.3 m off at the ego's 6 m/s.)"""
+    ego = ego_s(T, wait_until=7.5) - 9.75
+    path = make_junction_db(tmp_path, [drive("ego", T, ego, "S_left", is_ego=True),
+                                       drive("car", T, oncoming_s(T), "N_straight")])
+    frames = left_turn_frames(path, drives=["j1"])["phase_frames"]
+    standing = frames.filter((pl.col("t_s") == 6.0) & (pl.col("actor_id") == "car")).row(0, named=True)
+    assert standing["ego_offset_from_junction_start_m"] == pytest.approx(-9.5, abs=0.35)
+    assert match(path, [SCENARIO]).matches.select("actor_id").rows() == [("car",)]

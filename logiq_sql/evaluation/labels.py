@@ -499,7 +499,7 @@ def _on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame)
     link and front_m / centre_m: the front's (centre's) offset from the junction start along the path.
 
     A vehicle's link is that of the first internal lane of a signalised path it was on. The front is SUMO's
-    lane position; the centre is front - length / 2 (the box centre, as the matcher uses).
+    lane position (the point the junction offsets measure, docs/semantics.md); the centre is front - length / 2.
     """
     internal = path_lanes.filter(pl.col("lane_length_m").is_not_null())
     first = (rows.join(internal.select("lane_id", "link"), on="lane_id")
@@ -527,13 +527,13 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
         return pl.DataFrame(schema=out_schema)
     paths = _on_paths(rows, links, path_lanes)
     lo, hi = p["min_offset_from_junction_start"] - EPS, p["max_offset_from_junction_start"] + EPS
-    near = pl.col("centre_m").is_between(lo, hi)
+    near = pl.col("front_m").is_between(lo, hi)
     light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
              .unique(["tl", "frame"], keep="last").sort("frame"))
     stops = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT) & near
                           & (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS)
-                          & (pl.col("centre_m") >= -p["max_offset_from_traffic_light"] - EPS)
-                          & (pl.col("centre_m") < pl.col("total_m")))
+                          & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS)
+                          & (pl.col("front_m") < pl.col("total_m")))
              .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
              .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(_GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
@@ -558,20 +558,20 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
     inside = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT))
               .group_by(ego_id="vehicle_id")
-              .agg(end_s=pl.col("t_s").filter((pl.col("centre_m") >= -EPS)
-                                              & (pl.col("centre_m") < pl.col("total_m"))).max(),
-                   exited=(pl.col("centre_m") >= pl.col("total_m")).any()))
+              .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
+                                              & (pl.col("front_m") < pl.col("total_m"))).max(),
+                   exited=(pl.col("front_m") >= pl.col("total_m")).any()))
     waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
                        & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
-    # the ego waits until the actor is in the junction: the actor's centre is past its junction start within
+    # the ego waits until the actor is in the junction: the actor's front is past its junction start within
     # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor)
     keys = ["ego_id", "actor_id", "link", "link_f"]
     runs = _islands(waiting, keys, _gap_frames(p, dt))
     entered = (runs.select(*keys, "island", "start_frame", "end_frame")
-               .join(paths.select(actor_id="vehicle_id", frame="frame", centre_m_f="centre_m"), on="actor_id")
+               .join(paths.select(actor_id="vehicle_id", frame="frame", front_m_f="front_m"), on="actor_id")
                .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
-                       & (pl.col("centre_m_f") >= -EPS))
+                       & (pl.col("front_m_f") >= -EPS))
                .select(*keys, "island").unique())
     return (
         runs.join(entered, on=[*keys, "island"])
