@@ -270,3 +270,46 @@ def test_junction_offsets_are_measured_at_the_front(tmp_path):
     standing = frames.filter((pl.col("t_s") == 6.0) & (pl.col("actor_id") == "car")).row(0, named=True)
     assert standing["ego_offset_from_junction_start_m"] == pytest.approx(-9.5, abs=0.35)
     assert match(path, [SCENARIO]).matches.select("actor_id").rows() == [("car",)]
+
+
+GREEN_AT_S = 8.0
+
+
+def green_at(seconds: float) -> list[str]:
+    """Red until ``seconds``, green after (frame by frame at 10 Hz)."""
+    return ["red"] * int(round(seconds * 10)) + ["green"]
+
+
+def ego_pulls_forward_s(t: np.ndarray) -> np.ndarray:
+    """Stands at the line (centre 2 m back) from 4 s; at the green (8 s) pulls forward at 2 m/s^2 for 1.5 s and
+    brakes at 1.5 m/s^2 to its waiting position 3.25 m into the junction (11.5 s, clear of the oncoming lane);
+    sets off at 12 s at 2 m/s^2 to 6 m/s."""
+    a = np.clip(t - GREEN_AT_S, 0, 1.5)
+    b = np.clip(t - GREEN_AT_S - 1.5, 0, 2.0)
+    go = np.clip(t - 12.0, 0, None)
+    standing = -18 + 8 * np.minimum(t, 4) - np.minimum(t, 4) ** 2
+    forward = standing + a**2 + 3 * b - 0.75 * b**2
+    return np.where(t < 12.0, forward, 3.25 + np.where(go < 3, go**2, 9 + 6 * (go - 3)))
+
+
+def oncoming_from_the_line_s(t: np.ndarray) -> np.ndarray:
+    """Waits at its red line (centre 5 m back), pulls away at the green at 3 m/s^2 up to 12 m/s."""
+    tau = np.clip(t - GREEN_AT_S, 0, None)
+    return -5 + np.where(tau < 4, 1.5 * tau**2, 24 + 12 * (tau - 4))
+
+
+def test_the_ego_gives_way_while_it_pulls_forward_from_the_green(tmp_path):
+    """At the green both start from standstill: the ego rolls (at up to 3 m/s) to its waiting position and stops
+    again only when the oncoming car's front is already more than 10 m into the junction, while the car needed
+    1.35 s to reach its junction start. The ego stopped on green and gives the right of way all along: phase 1
+    begins with the stop and holds while it yields, pulling forward or not (docs/semantics.md, phase 1). With
+    the stop required at every frame, phase 1 ended 0.3 s after the green and sut_yield_to_npc began 1 s later:
+    the chain broke and the yield was lost."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_pulls_forward_s(T), "S_left", is_ego=True),
+                                       drive("car", T, oncoming_from_the_line_s(T), "N_straight")],
+                            light=green_at(GREEN_AT_S))
+    result = match(path, [SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("car",)]
+    starts = result.match_phases.sort("phase_index")["start_s"].to_list()
+    assert starts[0] == pytest.approx(GREEN_AT_S, abs=0.11)  # the stop, at the green
+    assert starts[1] == pytest.approx(GREEN_AT_S + 1.4, abs=0.11)  # the car's front enters the junction

@@ -530,14 +530,14 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     near = pl.col("front_m").is_between(lo, hi)
     light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
              .unique(["tl", "frame"], keep="last").sort("frame"))
+    # the ego's frames near its junction start on green (stopped or not: it stops, then gives the right of way)
     stops = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT) & near
-                          & (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS)
                           & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS)
                           & (pl.col("front_m") < pl.col("total_m")))
              .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
              .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(_GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
-                     width_m="width_m"))
+                     width_m="width_m", stopped=pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS))
     foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
         actor_id="vehicle_id", frame="frame", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
         length_m_f="length_m")
@@ -565,9 +565,14 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
                        & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
     # the ego waits until the actor is in the junction: the actor's front is past its junction start within
-    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor)
+    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor); the run
+    # counts from the ego's first stop in it (it stops, then may pull forward while it gives way)
     keys = ["ego_id", "actor_id", "link", "link_f"]
-    runs = _islands(waiting, keys, _gap_frames(p, dt))
+    runs = (waiting.with_columns(island=_island(keys, _gap_frames(p, dt)))
+            .group_by(*keys, "island")
+            .agg(start_frame=pl.col("frame").filter("stopped").min(), end_frame=pl.col("frame").max(),
+                 start_s=pl.col("t_s").filter("stopped").min())
+            .drop_nulls("start_frame"))
     entered = (runs.select(*keys, "island", "start_frame", "end_frame")
                .join(paths.select(actor_id="vehicle_id", frame="frame", front_m_f="front_m"), on="actor_id")
                .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)

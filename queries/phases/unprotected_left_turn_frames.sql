@@ -35,6 +35,9 @@
 --   actor_first                              the actor's box leaves the area before the ego's enters it
 --   ego_yields                               actor_first, and the ego's box has not reached the area yet: the
 --                                            ego is giving the right of way
+--   ego_has_stopped                          the ego stood (ego_stopped) at a frame of the current stretch of
+--                                            frames at which phase 1's other conditions all hold: it stops,
+--                                            then gives the right of way, pulling forward or standing
 --   actor_crossing                           the actor is past the start of its (buffered) encroachment and
 --                                            at most max_offset_from_junction_end past the junction end
 --   actor_reaches_junction_end               the actor gets to min_offset_from_junction_end from the junction
@@ -368,6 +371,28 @@ conditions as (
         coalesce(ego_offset_from_junction_start_m >= $min_offset_from_junction_start_m
             and ego_offset_from_junction_end_m <= 0, false) as ego_in_junction
     from measured
+),
+
+waiting as (
+    -- phase 1's conditions but the stop itself, and the last frame (so far) at which they did not all hold
+    select
+        *,
+        actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range and light_green
+            and actor_near_junction_start and ego_yields as ego_waiting,
+        max(case when not (actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range
+                           and light_green and actor_near_junction_start and ego_yields) then frame end) over (
+            partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
+            rows between unbounded preceding and current row
+        ) as waiting_since_frame
+    from conditions
 )
 
-select * from conditions
+select
+    *,
+    -- the ego stopped at some frame of the current stretch of waiting (the stop starts phase 1; it then gives
+    -- the right of way, pulling forward to its waiting position or not)
+    coalesce(max(case when ego_waiting and ego_stopped then frame end) over (
+        partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
+        rows between unbounded preceding and current row
+    ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped
+from waiting
