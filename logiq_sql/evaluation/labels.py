@@ -578,8 +578,19 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
                        & (pl.col("front_m_f") >= -EPS))
                .select(*keys, "island").unique())
+    # the turn follows the crossing: E sets off (the step after its last stop before its box reaches the
+    # conflict) at the latest max_gap after A's front is max_offset_from_junction_end past its junction end
+    stood = paths.filter(pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS).select(
+        ego_id="vehicle_id", stop_frame="frame")
+    set_off = (waiting.select(*keys, "ego_in_frame").unique().join(stood, on="ego_id")
+               .filter(pl.col("stop_frame") < pl.col("ego_in_frame"))
+               .group_by(keys).agg(set_off=pl.col("stop_frame").max() + 1))
+    crossed = (paths.filter(pl.col("front_m") <= pl.col("total_m") + p["max_offset_from_junction_end"] + EPS)
+               .group_by(actor_id="vehicle_id").agg(crossed_frame=pl.col("frame").max()))
+    turns = (set_off.join(crossed, on="actor_id")
+             .filter(pl.col("set_off") <= pl.col("crossed_frame") + 1 + _gap_frames(p, dt)).select(keys))
     return (
-        runs.join(entered, on=[*keys, "island"])
+        runs.join(entered, on=[*keys, "island"]).join(turns, on=keys)
         .group_by(keys).agg(start_s=pl.col("start_s").min())
         .join(inside.filter("exited"), on="ego_id")
         .filter(pl.col("end_s") >= pl.col("start_s") - EPS)

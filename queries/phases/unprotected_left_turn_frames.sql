@@ -38,6 +38,9 @@
 --   ego_has_stopped                          the ego stood (ego_stopped) at a frame of the current stretch of
 --                                            frames at which phase 1's other conditions all hold: it stops,
 --                                            then gives the right of way, pulling forward or standing
+--   ego_turning                              ego_in_junction, after the ego's last stand (ego_stopped) before
+--                                            its box reaches the encroachment area: the turn, from the moment
+--                                            the ego sets off
 --   actor_crossing                           the actor is past the start of its (buffered) encroachment and
 --                                            at most max_offset_from_junction_end past the junction end
 --   actor_reaches_junction_end               the actor gets to min_offset_from_junction_end from the junction
@@ -383,7 +386,13 @@ waiting as (
                            and light_green and actor_near_junction_start and ego_yields) then frame end) over (
             partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
             rows between unbounded preceding and current row
-        ) as waiting_since_frame
+        ) as waiting_since_frame,
+        -- the ego's last stand before its box reaches the encroachment area (before it leaves the junction when
+        -- the paths share no area): it sets off on its turn at the next frame
+        max(case when ego_stopped and (ego_encroachment_frame is null or frame < ego_encroachment_frame)
+                 then frame end) over (
+            partition by drive_id, ego_id, ego_passage, actor_id, actor_passage
+        ) as ego_last_stop_frame
     from conditions
 )
 
@@ -394,5 +403,6 @@ select
     coalesce(max(case when ego_waiting and ego_stopped then frame end) over (
         partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
         rows between unbounded preceding and current row
-    ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped
+    ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped,
+    ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning
 from waiting
