@@ -328,3 +328,25 @@ def test_turning_left_starts_when_the_ego_sets_off(tmp_path):
     assert result.matches.select("actor_id").rows() == [("second",)]
     turn = result.match_phases.filter(pl.col("phase") == "sut_turn_left").row(0, named=True)
     assert turn["start_s"] == pytest.approx(14.3, abs=0.11)  # its speed over 0.5 s passes 2 kph at 14.3 s
+
+
+def test_a_red_before_the_actor_enters_ends_the_occurrence_but_not_one_after(tmp_path):
+    """Reading of a red between the stop and the turn (docs/semantics.md, "A red in between"). (a) The ego
+    stops at the line on green at 4 s, the light turns red at 5 s with the oncoming car still at its line, and
+    at the next green (10 s) the car goes: the occurrence is the one that starts at the new green; the wait
+    before the red gave way to nobody. (b) The light turns red at 5.5 s while the car is already crossing and
+    the ego, stopped on green, sets off in the red to clear the junction: still one occurrence."""
+    light = ["green"] * 50 + ["red"] * 50 + ["green"]
+    ego = ego_s(T, wait_until=14.0)
+    car = np.where(T < 10.0, -5.0, oncoming_from_the_line_s(T + GREEN_AT_S - 10.0))
+    path = make_junction_db(tmp_path / "before", [drive("ego", T, ego, "S_left", is_ego=True),
+                                                  drive("car", T, car, "N_straight")], light=light)
+    result = match(path, [SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("car",)]
+    assert result.matches["start_s"][0] == pytest.approx(10.0, abs=0.11)  # the new green, not the stop at 4 s
+    path = make_junction_db(tmp_path / "after", [drive("ego", T, ego_s(T, wait_until=6.5), "S_left", is_ego=True),
+                                                 drive("car", T, oncoming_s(T), "N_straight")],
+                            light=["green"] * 55 + ["red"])
+    result = match(path, [SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("car",)]
+    assert result.matches["start_s"][0] == pytest.approx(3.8, abs=0.11)
