@@ -350,3 +350,16 @@ def test_a_red_before_the_actor_enters_ends_the_occurrence_but_not_one_after(tmp
     result = match(path, [SCENARIO])
     assert result.matches.select("actor_id").rows() == [("car",)]
     assert result.matches["start_s"][0] == pytest.approx(3.8, abs=0.11)
+
+
+def test_the_ego_may_set_off_a_while_after_the_last_car_it_waited_for(tmp_path):
+    """The car enters at 5 s and is 5 m past the junction end at 7.3 s; the ego sets off at 8.5 s, 1.5 s after
+    the car's box left its path, a usual start-up delay (SUMO's left-turners: 0.3-4.4 s). The car is the last one
+    that left the ego's path before it set off, so phase 3 lasts until the set-off (docs/semantics.md, phase 3):
+    one match. With phase 3 ending 5 m past the junction end the turn began 1.2 s later and the chain broke."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_s(T, wait_until=8.5), "S_left", is_ego=True),
+                                       drive("car", T, oncoming_s(T, enters_at=5.0), "N_straight")])
+    result = match(path, [SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("car",)]
+    phases = result.match_phases.sort("phase_index")
+    assert phases["start_s"][3] == pytest.approx(8.8, abs=0.11)  # the set-off

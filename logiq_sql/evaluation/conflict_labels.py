@@ -64,11 +64,12 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
                p: dict, dt: float) -> pl.DataFrame:
     """Every (E, A) whose paths cross, with each test of the label as a column (for the disagreement report).
 
-    Columns: ego_id, actor_id, crossed, waited_for, at_green, exited, start_s, end_s, link, link_f.
+    Columns: ego_id, actor_id, crossed, waited_for, at_green, exited, start_s, end_s, link, link_f, actor_out (the
+    frame A's rear leaves the conflict), set_off (E's set-off frame).
     """
     schema = {"ego_id": pl.String, "actor_id": pl.String, "crossed": pl.Boolean, "waited_for": pl.Boolean,
               "at_green": pl.Boolean, "exited": pl.Boolean, "start_s": pl.Float64, "end_s": pl.Float64,
-              "link": pl.String, "link_f": pl.String}
+              "link": pl.String, "link_f": pl.String, "actor_out": pl.Int64, "set_off": pl.Int64}
     if links.is_empty():
         return pl.DataFrame(schema=schema)
     paths = _on_paths(rows, links, path_lanes)

@@ -38,6 +38,9 @@
 --   ego_has_stopped                          the ego stood (ego_stopped) at a frame of the current stretch of
 --                                            frames at which phase 1's other conditions all hold: it stops,
 --                                            then gives the right of way, pulling forward or standing
+--   actor_finishing                          actor_crossing, or the actor is the last of kinds to leave the
+--                                            encroachment area (its box) before the ego sets off, from that
+--                                            frame until the ego sets off: the car the ego waited for
 --   ego_turning                              ego_in_junction, after the ego's last stand (ego_stopped) before
 --                                            its box reaches the encroachment area: the turn, from the moment
 --                                            the ego sets off
@@ -328,6 +331,7 @@ measured as (
         c.actor_first,
         c.pet_s,
         c.ego_in_frame as ego_encroachment_frame,
+        c.actor_out_frame as actor_clear_frame,
         min(case when f.actor_offset_from_junction_end_m >= $min_offset_from_junction_end_m then f.frame end) over (
             partition by f.drive_id, f.ego_id, f.ego_passage, f.actor_id, f.actor_passage
         ) as actor_end_frame,
@@ -394,6 +398,18 @@ waiting as (
             partition by drive_id, ego_id, ego_passage, actor_id, actor_passage
         ) as ego_last_stop_frame
     from conditions
+),
+
+clearing as (
+    -- the last frame at which an actor of kinds that crosses first leaves the ego's path before the ego sets off
+    -- (the frame after its last stand), over every actor of the ego's passage: the actor the ego waited for
+    select
+        *,
+        max(case when actor_kind_ok and actor_first and actor_clear_frame <= ego_last_stop_frame + 1
+                 then actor_clear_frame end) over (
+            partition by drive_id, ego_id, ego_passage
+        ) as last_clear_frame
+    from waiting
 )
 
 select
@@ -404,5 +420,8 @@ select
         partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
         rows between unbounded preceding and current row
     ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped,
-    ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning
-from waiting
+    ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning,
+    -- crossing, or, for the last actor the ego waited for, past the encroachment area until the ego sets off
+    actor_crossing or coalesce(actor_clear_frame = last_clear_frame and frame >= actor_clear_frame
+                               and frame <= ego_last_stop_frame, false) as actor_finishing
+from clearing
