@@ -5,24 +5,16 @@ tls_states file), and the disagreement report against the phase labeller."""
 from __future__ import annotations
 
 import polars as pl
-from test_labels import JUNCTION, _offsets, needs_fixtures
+from test_labels import JUNCTION, left_turn_label_rows, needs_fixtures
 
 from logiq_sql.evaluation.conflict_labels import compare, label_conflicts, main
-from logiq_sql.readers.sumo import xml_records
 
 
 @needs_fixtures
 def test_each_label_is_a_wait_on_green_for_a_car_that_crossed_first():
     labels = label_conflicts(JUNCTION)
     assert labels.height >= 20 and labels["source"].str.starts_with("conflict:").all()
-    rows = _offsets(JUNCTION)
-    states = xml_records(JUNCTION / "tls_states.xml.gz", "tlsState", ("time", "state"), "</tlsStates>").select(
-        t_s=pl.col("time").cast(pl.Float64), state="state")
-    ego = rows.rename(lambda c: c if c in ("vehicle_id", "t_s") else f"e_{c}")
-    actor = rows.rename(lambda c: c if c in ("vehicle_id", "t_s") else f"a_{c}")
-    at_start = (labels.join(ego, left_on=["ego_id", "start_s"], right_on=["vehicle_id", "t_s"])
-                .join(actor, left_on=["actor_id", "start_s"], right_on=["vehicle_id", "t_s"])
-                .join(states, left_on="start_s", right_on="t_s"))
+    rows, _, at_start = left_turn_label_rows(labels)
     assert at_start.height == labels.height
     # a left-turner standing on green within 10 m of its stop line (front), a vehicle from another edge coming
     assert at_start["e_dir"].is_in(["l", "L"]).all() and (at_start["e_speed_mps"] <= 2 / 3.6 + 1e-9).all()

@@ -373,10 +373,9 @@ def _offsets(run: Path) -> pl.DataFrame:
             .with_columns(centre_m=pl.col("front_m") - pl.col("length_m") / 2))
 
 
-@needs_fixtures
-def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
-    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == LEFT_TURN)
-    assert labels.height >= 20
+def left_turn_label_rows(labels: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
+    """The junction fixture's FCD offsets (``_offsets``), its ego rows (columns prefixed e_), and each left-turn
+    label with the ego's (e_*) and the actor's (a_*) rows and the signal state string at its start."""
     rows = _offsets(JUNCTION)
     states = xml_records(JUNCTION / "tls_states.xml.gz", "tlsState", ("time", "state"), "</tlsStates>").select(
         t_s=pl.col("time").cast(pl.Float64), state="state")
@@ -385,6 +384,14 @@ def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
     at_start = (labels.join(ego, left_on=["ego_id", "start_s"], right_on=["vehicle_id", "t_s"])
                 .join(actor, left_on=["actor_id", "start_s"], right_on=["vehicle_id", "t_s"])
                 .join(states, left_on="start_s", right_on="t_s"))
+    return rows, ego, at_start
+
+
+@needs_fixtures
+def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
+    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == LEFT_TURN)
+    assert labels.height >= 20
+    rows, ego, at_start = left_turn_label_rows(labels)
     assert at_start.height == labels.height
     # the ego turns left through the signalised junction (its internal lanes are those of a dir="l" connection)
     assert at_start["e_dir"].is_in(["l", "L"]).all() and at_start["e_kind"].eq("vehicle").all()
