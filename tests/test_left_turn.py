@@ -363,3 +363,14 @@ def test_the_ego_may_set_off_a_while_after_the_last_car_it_waited_for(tmp_path):
     assert result.matches.select("actor_id").rows() == [("car",)]
     phases = result.match_phases.sort("phase_index")
     assert phases["start_s"][3] == pytest.approx(8.8, abs=0.11)  # the set-off
+
+
+def test_cars_passing_together_are_both_waited_for(tmp_path):
+    """Two cars pass 0.5 s apart (bumper to bumper at 10 m/s) and the ego sets off 1.5 s after the second one
+    has left its path: it waited for both (docs/semantics.md, phase 3: the last car, and any that left the ego's
+    path at most max_gap before it). Crediting the last one alone lost the first, as two lanes of oncoming
+    traffic passing side by side lost one of them."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_s(T, wait_until=9.0), "S_left", is_ego=True),
+                                       drive("first", T, oncoming_s(T, enters_at=5.0), "N_straight"),
+                                       drive("second", T, oncoming_s(T, enters_at=5.5), "N_straight")])
+    assert match(path, [SCENARIO]).matches.select("actor_id").sort("actor_id").rows() == [("first",), ("second",)]

@@ -14,8 +14,9 @@ internal-lane shapes swept by the vType widths):
 - *crossed*: A's rear leaves the conflict area before E's front reaches it (FCD lane position, vType length);
 - *set-off*: E's turn starts the step after its last standstill (speed <= ``stopping_car_speed_limit``) before
   its front reaches the conflict area;
-- *the one it waited for*: A is the last actor to leave E's path before the set-off, or it leaves it after the
-  set-off (E rolls while A clears): every other actor crossed earlier and E kept standing after it;
+- *the one it waited for*: A is the last actor to leave E's path before the set-off (or left it at most
+  ``max_gap`` before that one: two lanes of oncoming traffic passing together), or it leaves it after the set-off
+  (E rolls while A clears): every other actor crossed earlier and E kept standing after it;
 - *at a green*: E stood with its front within [``min_offset_from_junction_start``,
   ``max_offset_from_junction_start``] of the stop line and at most ``max_offset_from_traffic_light`` before it,
   its link's signal green (``tls_states``: ``G``/``g``), while A was approaching (A's front past
@@ -29,6 +30,7 @@ Nothing here reads logiq_sql's tracks, junction tables or SQL. Why each reading:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -114,7 +116,8 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
                    .group_by("ego_id").agg(last_out=pl.col("actor_out").max()))
     pairs = pairs.join(last_before, on="ego_id", how="left").with_columns(
         waited_for=pl.col("crossed") & pl.col("set_off").is_not_null()
-        & ((pl.col("actor_out") > pl.col("set_off")) | (pl.col("actor_out") == pl.col("last_out"))))
+        & ((pl.col("actor_out") > pl.col("set_off"))
+           | (pl.col("actor_out") >= pl.col("last_out") - math.floor(p["max_gap"] / dt + EPS))))
     # E's link red before A's front reached its stop line: the occurrence starts after the last such step
     light = _link_states(states, dt)
     ego_state = (ego_rows.sort("frame").join_asof(light, on="frame", by="tl", strategy="backward",

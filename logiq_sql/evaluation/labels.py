@@ -587,14 +587,15 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                .group_by(keys).agg(set_off=pl.col("stop_frame").max() + 1))
     crossed = (paths.filter(pl.col("front_m") <= pl.col("total_m") + p["max_offset_from_junction_end"] + EPS)
                .group_by(actor_id="vehicle_id").agg(crossed_frame=pl.col("frame").max()))
-    # ... or A is the last actor to leave E's path before E sets off (phase 3 lasts until the set-off then)
+    # ... or A is the last actor to leave E's path before E sets off, or left it at most max_gap before that one
+    # (phase 3 lasts until the set-off then)
     outs = waiting.select(*keys, "actor_out_frame").unique().join(set_off, on=keys)
     last = (outs.filter(pl.col("actor_out_frame") <= pl.col("set_off")).group_by("ego_id")
             .agg(last_out=pl.col("actor_out_frame").max()))
     turns = (set_off.join(crossed, on="actor_id")
              .join(outs.select(*keys, "actor_out_frame"), on=keys).join(last, on="ego_id", how="left")
              .filter((pl.col("set_off") <= pl.col("crossed_frame") + 1 + _gap_frames(p, dt))
-                     | (pl.col("actor_out_frame") == pl.col("last_out")))
+                     | (pl.col("actor_out_frame") >= pl.col("last_out") - _gap_frames(p, dt)))
              .select(keys))
     return (
         runs.join(entered, on=[*keys, "island"]).join(turns, on=keys)

@@ -4,7 +4,7 @@
 --        condition (phases/stop_in_green_light.sql, ... take the conjunction of theirs)
 -- reads: crossing_pairs, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
 --        traffic_light_states
--- params: $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
+-- params: $max_gap_s, $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
 --         $min_offset_from_junction_end_m, $max_offset_from_junction_end_m,
 --         $ref_car_max_distance_from_junction_m, $stopping_car_speed_limit_mps,
 --         $max_offset_from_traffic_light_m, $encroachment_start_buffer, $encroachment_end_buffer
@@ -39,8 +39,9 @@
 --                                            frames at which phase 1's other conditions all hold: it stops,
 --                                            then gives the right of way, pulling forward or standing
 --   actor_finishing                          actor_crossing, or the actor is the last of kinds to leave the
---                                            encroachment area (its box) before the ego sets off, from that
---                                            frame until the ego sets off: the car the ego waited for
+--                                            encroachment area (its box) before the ego sets off (or left it at
+--                                            most max_gap before that one), from that frame until the ego sets
+--                                            off: the car the ego waited for
 --   ego_turning                              ego_in_junction, after the ego's last stand (ego_stopped) before
 --                                            its box reaches the encroachment area: the turn, from the moment
 --                                            the ego sets off
@@ -402,14 +403,17 @@ waiting as (
 
 clearing as (
     -- the last frame at which an actor of kinds that crosses first leaves the ego's path before the ego sets off
-    -- (the frame after its last stand), over every actor of the ego's passage: the actor the ego waited for
+    -- (the frame after its last stand), over every actor of the ego's passage: the actor the ego waited for, with
+    -- any that left it at most max_gap earlier (two oncoming lanes passing together)
     select
-        *,
-        max(case when actor_kind_ok and actor_first and actor_clear_frame <= ego_last_stop_frame + 1
-                 then actor_clear_frame end) over (
-            partition by drive_id, ego_id, ego_passage
-        ) as last_clear_frame
-    from waiting
+        w.*,
+        max(case when w.actor_kind_ok and w.actor_first and w.actor_clear_frame <= w.ego_last_stop_frame + 1
+                 then w.actor_clear_frame end) over (
+            partition by w.drive_id, w.ego_id, w.ego_passage
+        ) - floor($max_gap_s / d.dt_s + 1e-9) as waited_for_from_frame
+    from waiting as w
+    inner join drive_inputs as d
+        on w.drive_id = d.drive_id
 )
 
 select
@@ -422,6 +426,7 @@ select
     ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped,
     ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning,
     -- crossing, or, for the last actor the ego waited for, past the encroachment area until the ego sets off
-    actor_crossing or coalesce(actor_clear_frame = last_clear_frame and frame >= actor_clear_frame
+    actor_crossing or coalesce(actor_clear_frame >= waited_for_from_frame
+                               and actor_clear_frame <= ego_last_stop_frame + 1 and frame >= actor_clear_frame
                                and frame <= ego_last_stop_frame, false) as actor_finishing
 from clearing
