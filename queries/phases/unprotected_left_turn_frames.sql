@@ -410,7 +410,7 @@ clearing as (
         max(case when w.actor_kind_ok and w.actor_first and w.actor_clear_frame <= w.ego_last_stop_frame + 1
                  then w.actor_clear_frame end) over (
             partition by w.drive_id, w.ego_id, w.ego_passage
-        ) - floor($max_gap_s / d.dt_s + 1e-9) as waited_for_from_frame
+        ) - floor($max_gap_s / nullif(d.dt_s, 0) + 1e-9) as waited_for_from_frame
     from waiting as w
     inner join drive_inputs as d
         on w.drive_id = d.drive_id
