@@ -51,18 +51,18 @@ def test_the_ego_lane_is_the_lane_of_its_lane_run(tmp_path):
     db = gradual_cut_out(tmp_path)
     match(db, scenarios=[CUT_OUT])
     with duckdb.connect(str(db), read_only=True) as con:
-        lanes = con.sql("select frame, lane_id, best_lane_id, lane_run from ego_lanes order by frame").pl()
-    # the best lane switches at 5.6 s (at 5.5 s the centre is on the line: a tie, the smaller id); the change is
-    # confirmed later (6.4 s) and dated there: the ego's lane and its lane run switch with the best lane
-    assert lanes.filter(pl.col("best_lane_id") == "L2")["frame"].min() == 56
+        lanes = con.sql("select frame, lane_id, lane_run from ego_lanes order by frame").pl()
+    # the lane switches at 5.6 s (at 5.5 s the centre is on the line: a tie, the smaller id); the change is
+    # confirmed later (6.4 s) and dated at the crossing: the lane run switches with the lane
     assert lanes.filter(pl.col("lane_id") == "L2")["frame"].min() == 56
     assert lanes.filter(pl.col("lane_run") == 1)["frame"].min() == 56
 
 
-def test_a_lane_flicker_within_the_tolerance_keeps_the_ego_lane(tmp_path):
+def test_a_lane_flicker_within_the_tolerance_is_no_lane_change(tmp_path):
     """Jitter across the line: the ego's centre wanders 0.4 m over it and back, then returns to the middle of its
-    lane; its best lane flickers, its lane does not, and no lane change is counted (not even one back into its
-    own lane when it is more than the tolerance from the other lane again)."""
+    lane; its lane is the one its centre is in (as every actor's), but no lane change is counted (not even one back
+    into its own lane when it is more than the tolerance from the other lane again), and the follower in its lane
+    keeps following: the lanes of its lane run are its road."""
     t = times(8.0)
     y = np.full(t.shape, 3.3)
     y[20:60:7] = 3.9  # over the line (3.5) for single frames
@@ -70,8 +70,8 @@ def test_a_lane_flicker_within_the_tolerance_keeps_the_ego_lane(tmp_path):
     db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, y, is_ego=True), actor("f", t, 80 + 10 * t, Y1)])
     result = match(db, scenarios=["follower_vehicle"])
     with duckdb.connect(str(db), read_only=True) as con:
-        lanes = con.sql("select lane_id, best_lane_id, lane_run from ego_lanes").pl()
-    assert set(lanes["best_lane_id"]) == {"L1", "L2"} and set(lanes["lane_id"]) == {"L1"}
+        lanes = con.sql("select lane_id, lane_run from ego_lanes").pl()
+    assert set(lanes["lane_id"]) == {"L1", "L2"}
     assert lanes["lane_run"].max() == 0
     assert intervals(result.matches, "follower_vehicle") == [("ego", "f", 0.0, 8.0)]
 

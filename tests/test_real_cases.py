@@ -1,0 +1,63 @@
+"""Cases found by eye on the bundled real drives (issue 36, cases 5-8), each checked on the raw track rows.
+
+- NGSIM Peach St. (CommonRoad USA_Peach-3_1): ego 413 and car 415, 15-17 m behind it, drive one behind the other
+  with their centres 0.3-0.6 m over the same lane line; car 418 drives 3-4 m to the side in the next lane (2.9-3.8 m to the side from 1.8 s on). 415 is
+  the follower, 418 is not (the ego and the actors are put in lanes by one rule: the lane the centre is in).
+- NGSIM US-101 (USA_US101-14_1): ego 64 moves into the lane of car 49, which drives ahead of it: the ego changes
+  lanes, 49 does not cut in.
+- NGSIM Peach St. (USA_Peach-3_2): car 419 drives 13-25 m ahead of ego 420, at most 1.6 m beside its line, where the
+  lane forks into two overlapping lanes: a change of lane id alone, no cut-in.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import polars as pl
+import pytest
+
+from logiq_sql import ingest, match
+
+NGSIM = Path(__file__).parent / "data" / "commonroad_ngsim" / "scenarios_2018b"
+PEACH_3_1 = "USA_Peach-3_1_T-1@2018b"
+PEACH_3_2 = "USA_Peach-3_2_T-1@2018b"
+US101_14 = "USA_US101-14_1_T-1@2018b"
+CUT_IN = "cut_in_ahead_of_ego"
+
+
+@pytest.fixture(scope="module")
+def ngsim_db(tmp_path_factory) -> Path:
+    db = tmp_path_factory.mktemp("real_cases") / "ngsim.duckdb"
+    ingest("commonroad", [NGSIM / f"{name}_T-1.xml.gz" for name in ("USA_Peach-3_1", "USA_Peach-3_2",
+                                                                     "USA_US101-14_1")], db)
+    return db
+
+
+@pytest.fixture(scope="module")
+def ngsim_run(ngsim_db):
+    return match(ngsim_db, scenarios=["follower_vehicle"])
+
+
+def in_ego_frame(db: Path, drive_id: str, ego_id: str, actor_id: str) -> pl.DataFrame:
+    """The actor's centre in the ego's frame (x forward, y left), straight from the track rows."""
+    with duckdb.connect(str(db), read_only=True) as con:
+        rows = con.sql("""select e.t_s, e.x_m, e.y_m, e.heading_rad, a.x_m as ax, a.y_m as ay
+                          from tracks e join tracks a on a.drive_id = e.drive_id and a.frame = e.frame
+                          where e.drive_id = $d and e.actor_id = $e and a.actor_id = $a order by e.t_s""",
+                       params={"d": drive_id, "e": ego_id, "a": actor_id}).pl()
+    c, s = np.cos(rows["heading_rad"]), np.sin(rows["heading_rad"])
+    dx, dy = rows["ax"] - rows["x_m"], rows["ay"] - rows["y_m"]
+    return pl.DataFrame({"t_s": rows["t_s"], "fwd_m": dx * c + dy * s, "left_m": dy * c - dx * s})
+
+
+def test_peach_ego_413_is_followed_by_415_straight_behind_not_by_418_in_the_next_lane(ngsim_db, ngsim_run):
+    # the raw rows: 415 is straight behind, 418 a lane to the side, while both are 13-20 m behind
+    follower = in_ego_frame(ngsim_db, PEACH_3_1, "413", "415").filter(pl.col("t_s").is_between(1.8, 3.9))
+    beside = in_ego_frame(ngsim_db, PEACH_3_1, "413", "418").filter(pl.col("t_s").is_between(1.8, 3.7))
+    assert follower["fwd_m"].is_between(-20, -13).all() and (follower["left_m"].abs() < 1.0).all()
+    assert (beside["left_m"].abs() > 2.5).all()
+    followers = ngsim_run.matches.filter((pl.col("scenario") == "follower_vehicle")
+                                         & (pl.col("drive_id") == PEACH_3_1) & (pl.col("ego_id") == "413"))
+    assert followers["actor_id"].to_list() == ["415"]
