@@ -37,7 +37,7 @@ def ngsim_db(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def ngsim_run(ngsim_db):
-    return match(ngsim_db, scenarios=["follower_vehicle"])
+    return match(ngsim_db, scenarios=["follower_vehicle", CUT_IN])
 
 
 def in_ego_frame(db: Path, drive_id: str, ego_id: str, actor_id: str) -> pl.DataFrame:
@@ -61,3 +61,17 @@ def test_peach_ego_413_is_followed_by_415_straight_behind_not_by_418_in_the_next
     followers = ngsim_run.matches.filter((pl.col("scenario") == "follower_vehicle")
                                          & (pl.col("drive_id") == PEACH_3_1) & (pl.col("ego_id") == "413"))
     assert followers["actor_id"].to_list() == ["415"]
+
+
+def test_an_ego_that_moves_into_the_actor_lane_is_no_cut_in(ngsim_run):
+    cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == US101_14)
+                                       & (pl.col("ego_id") == "64") & (pl.col("actor_id") == "49"))
+    assert cut_ins.is_empty()
+
+
+def test_a_lane_that_forks_gives_no_cut_in(ngsim_db, ngsim_run):
+    ahead = in_ego_frame(ngsim_db, PEACH_3_2, "420", "419").filter(pl.col("t_s").is_between(1.5, 5.0))
+    assert ahead["fwd_m"].is_between(13, 26).all() and (ahead["left_m"].abs() < 2.0).all()
+    cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == PEACH_3_2)
+                                       & (pl.col("ego_id") == "420") & (pl.col("actor_id") == "419"))
+    assert cut_ins.is_empty()
