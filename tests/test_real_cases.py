@@ -7,6 +7,8 @@
   lanes, 49 does not cut in.
 - NGSIM Peach St. (USA_Peach-3_2): car 419 drives 13-25 m ahead of ego 420, at most 1.6 m beside its line, where the
   lane forks into two overlapping lanes: a change of lane id alone, no cut-in.
+- `explain` points at the moment a person looks at: nuScenes scene-0103's bicycle at its closest pass; a
+  Lankershim follower's first seconds that are no match, and why.
 """
 
 from __future__ import annotations
@@ -19,8 +21,11 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest, match
+from logiq_sql.explain import explain
 
 NGSIM = Path(__file__).parent / "data" / "commonroad_ngsim" / "scenarios_2018b"
+NUSCENES = Path(__file__).parent / "data" / "nuscenes_mini_scenarionet"
+BIKE_0103 = "ec0e6425eae2442698ff7b43d405d279"
 PEACH_3_1 = "USA_Peach-3_1_T-1@2018b"
 PEACH_3_2 = "USA_Peach-3_2_T-1@2018b"
 US101_14 = "USA_US101-14_1_T-1@2018b"
@@ -75,3 +80,34 @@ def test_a_lane_that_forks_gives_no_cut_in(ngsim_db, ngsim_run):
     cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == PEACH_3_2)
                                        & (pl.col("ego_id") == "420") & (pl.col("actor_id") == "419"))
     assert cut_ins.is_empty()
+
+
+@pytest.fixture(scope="module")
+def explain_db(tmp_path_factory) -> Path:
+    db = tmp_path_factory.mktemp("explain_cases") / "real.duckdb"
+    ingest("commonroad", [NGSIM / "USA_Lanker-1_2_T-1.xml.gz"], db)
+    ingest("scenarionet", [NUSCENES / "sd_nuscenes_v1.0-mini_scene-0103.pkl"], db)
+    return db
+
+
+def test_explain_shows_the_cyclist_at_its_closest_pass(explain_db):
+    """scene-0103's only moving bicycle near the ego passes 5.23 m away (box to box) at 17.0 s; it is first seen
+    46 m away. explain names the closest pass: the moment the 5 m limit is missed."""
+    found = explain(explain_db, "cyclist_close_to_moving_sut", "scene-0103", "recorded", actor=BIKE_0103)
+    (row,) = found.pairs.iter_rows(named=True)
+    assert row["at_s"] == pytest.approx(17.0)
+    assert "box_distance_m = 5.234" in found.text()
+    with duckdb.connect(str(explain_db), read_only=True) as con:  # the nearest centres, from the raw rows
+        (t_nearest,) = con.sql("""select e.t_s from tracks e join tracks a using (drive_id, frame)
+                                  where e.drive_id = 'scene-0103' and e.is_ego and a.actor_id = $a
+                                  order by (a.x_m - e.x_m) ** 2 + (a.y_m - e.y_m) ** 2 limit 1""",
+                               params={"a": BIKE_0103}).fetchall()[0]
+    assert abs(t_nearest - 17.0) <= 0.3
+
+
+def test_explain_says_why_the_first_seconds_of_a_follower_are_not_matched(explain_db):
+    """Lankershim car 1562 is behind ego 1526 from the start, on the lanes the ego drove before the recording
+    began; the match starts at 2.5 s. explain says why the first 2.4 s are no match, not just 'matched'."""
+    text = explain(explain_db, "follower_vehicle", "USA_Lanker-1_2_T-1@2018b", "1526", actor="1562").text()
+    assert "-- matched" in text
+    assert "not matched from 0.0 s to 2.4 s (frames 0-24): follower_vehicle does not hold: actor_on_ego_road" in text
