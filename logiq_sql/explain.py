@@ -251,7 +251,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
                   pl.col("phase_index").replace_strict(slots, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
-    # per stretch, each condition that is false in it: at how many of its frames, and its value where it first is
+    # per stretch, each condition that is false in it: at how many of its frames, and its value where it first is;
+    # the most frequent first, in the order the scenario lists them
     stretch = ["ego_id", "actor_id", "start_frame"]
     false_at = stretch_rows.select(*stretch, "end_frame", "start_s", "end_s", "t_s",
                                    _failed(0, s, stretch_rows.schema).alias("failed")).explode("failed")
@@ -261,7 +262,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, actor: str
     unmatched_text = false_at.group_by(*stretch, "end_frame", "start_s", "end_s", "frames",
                                        pl.col("failed").str.extract(r"^(\S+)", 1).alias("condition")).agg(
         pl.len().alias("false_frames"), pl.col("failed").first(), pl.col("t_s").first()
-    ).sort(*stretch, "false_frames", descending=[False, False, False, True]).group_by(
+    ).with_columns(listed=pl.col("condition").replace_strict(
+        [c.name for c in s.phases[0].conditions], list(range(len(s.phases[0].conditions))), default=None)
+    ).sort(*stretch, "false_frames", "listed", descending=[False, False, False, True, False]).group_by(
         *stretch, "end_frame", "start_s", "end_s", "frames", maintain_order=True).agg(
         pl.format("{} at {} of {} frames (first at {} s: {})", "condition", "false_frames", "frames",
                   pl.col("t_s").round(2), "failed").alias("why")

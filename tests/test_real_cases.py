@@ -110,4 +110,5 @@ def test_explain_says_why_the_first_seconds_of_a_follower_are_not_matched(explai
     began; the match starts at 2.5 s. explain says why the first 2.4 s are no match, not just 'matched'."""
     text = explain(explain_db, "follower_vehicle", "USA_Lanker-1_2_T-1@2018b", "1526", actor="1562").text()
     assert "-- matched" in text
-    assert "not matched from 0.0 s to 2.4 s (frames 0-24): follower_vehicle does not hold: actor_on_ego_road" in text
+    assert ("not matched from 0.0 s to 2.4 s (frames 0-24): follower_vehicle does not hold: actor_on_ego_road at 25 "
+            "of 25 frames (first at 0.0 s: actor_on_ego_road is false: actor_lane_id = 3602") in text
