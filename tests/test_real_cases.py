@@ -7,6 +7,9 @@
   lanes, 49 does not cut in.
 - NGSIM Peach St. (USA_Peach-3_2): car 419 drives 13-25 m ahead of ego 420, at most 1.6 m beside its line, where the
   lane forks into two overlapping lanes: a change of lane id alone, no cut-in.
+- NGSIM Lankershim (USA_Lanker-2_20): ego 2606 follows car 2597, straight in front of it, through a double left
+  turn; car 2529, further round the bend 10-15 m to the side and heading 55-75 degrees off the ego's way, is not
+  the leader it cuts out from, although its box lies over the ego's turn lanelet.
 - `explain` points at the moment a person looks at: nuScenes scene-0103's bicycle at its closest pass; a
   Lankershim follower's first seconds that are no match, and why.
 """
@@ -29,6 +32,7 @@ BIKE_0103 = "ec0e6425eae2442698ff7b43d405d279"
 PEACH_3_1 = "USA_Peach-3_1_T-1@2018b"
 PEACH_3_2 = "USA_Peach-3_2_T-1@2018b"
 US101_14 = "USA_US101-14_1_T-1@2018b"
+LANKER_2_20 = "USA_Lanker-2_20_T-1@2018b"
 CUT_IN = "cut_in_ahead_of_ego"
 
 
@@ -36,13 +40,13 @@ CUT_IN = "cut_in_ahead_of_ego"
 def ngsim_db(tmp_path_factory) -> Path:
     db = tmp_path_factory.mktemp("real_cases") / "ngsim.duckdb"
     ingest("commonroad", [NGSIM / f"{name}_T-1.xml.gz" for name in ("USA_Peach-3_1", "USA_Peach-3_2",
-                                                                     "USA_US101-14_1")], db)
+                                                                     "USA_US101-14_1", "USA_Lanker-2_20")], db)
     return db
 
 
 @pytest.fixture(scope="module")
 def ngsim_run(ngsim_db):
-    return match(ngsim_db, scenarios=["follower_vehicle", CUT_IN])
+    return match(ngsim_db, scenarios=["follower_vehicle", CUT_IN, "sut_cut_out"])
 
 
 def in_ego_frame(db: Path, drive_id: str, ego_id: str, actor_id: str) -> pl.DataFrame:
@@ -80,6 +84,23 @@ def test_a_lane_that_forks_gives_no_cut_in(ngsim_db, ngsim_run):
     cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == PEACH_3_2)
                                        & (pl.col("ego_id") == "420") & (pl.col("actor_id") == "419"))
     assert cut_ins.is_empty()
+
+
+def test_a_car_round_the_bend_is_not_the_leader_while_another_is_straight_in_front(ngsim_db, ngsim_run):
+    leader = in_ego_frame(ngsim_db, LANKER_2_20, "2606", "2597").filter(pl.col("t_s").is_between(3.8, 5.4))
+    turner = in_ego_frame(ngsim_db, LANKER_2_20, "2606", "2529").filter(pl.col("t_s").is_between(3.8, 5.4))
+    with duckdb.connect(str(ngsim_db), read_only=True) as con:
+        headings = con.sql("""select e.t_s, degrees(abs(atan2(sin(a.heading_rad - e.heading_rad),
+                                                             cos(a.heading_rad - e.heading_rad)))) as off_deg
+                              from tracks e join tracks a using (drive_id, frame)
+                              where e.drive_id = $d and e.actor_id = '2606' and a.actor_id = '2529'
+                                and e.t_s between 3.8 and 5.4""", params={"d": LANKER_2_20}).pl()
+    assert (leader["left_m"].abs() < 2.5).all() and leader["fwd_m"].is_between(5, 15).all()
+    assert (turner["left_m"] > 9).all() and (turner["fwd_m"] > leader["fwd_m"]).all()
+    assert headings["off_deg"].is_between(55, 80).all()
+    cut_outs = ngsim_run.matches.filter((pl.col("scenario") == "sut_cut_out") & (pl.col("drive_id") == LANKER_2_20)
+                                        & (pl.col("ego_id") == "2606") & (pl.col("actor_id") == "2529"))
+    assert cut_outs.is_empty()
 
 
 @pytest.fixture(scope="module")
