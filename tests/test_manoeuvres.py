@@ -8,6 +8,7 @@ import duckdb
 import numpy as np
 import polars as pl
 
+from logiq_sql.evaluation import lane_offsets
 from logiq_sql.explain import explain
 from logiq_sql.match import match
 from tests.helpers import Y1, Y2, actor, intervals, make_db, times
@@ -127,3 +128,19 @@ def test_ttc_needs_a_closing_speed_above_the_threshold(tmp_path):
                                        actor("f", t, 80 + 11 * t, Y1)])
     (kpi,) = match(fast, scenarios=["follower_vehicle"]).kpis.iter_rows(named=True)
     assert abs(kpi["ego_min_ttc_to_vehicle_s"] - 12.5) < 0.05  # 12.5 m gap at the end, 1 m/s
+
+
+def test_lane_offsets_reads_a_cut_in_against_the_lane_map(tmp_path):
+    """evaluation.lane_offsets (the by-eye check of real drives): on the cut-in above, the ego keeps the centre of
+    its lane (L1, offset 0) while the actor comes from the centre of the lane on its left (+3.5 m) onto it."""
+    t = times(10.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("npc", t, 120 + 10 * t, ramp(t, 3.0, Y2, Y1, 3.0))])
+    match(db, scenarios=[CUT_IN])
+    lines = lane_offsets.report(str(db), CUT_IN, n=12, seed=36).splitlines()
+    assert lines[0] == ("=== d1 ego ego actor npc 1.4-7.5 s: actor_beside_ahead 1.4-4.4, "
+                        "actor_in_ego_lane_ahead 4.5-7.5")
+    rows = [line.split() for line in lines[1:]]
+    assert rows[0] == ["1.0", "s", "ego", "0.0", "m", "actor", "3.5", "m", "actor", "ahead", "20.0", "m"]
+    assert rows[-1][2:8] == ["ego", "0.0", "m", "actor", "0.0", "m"]
+    assert sum(row[0] == "*" for row in rows) == 13  # 1.5 .. 7.5 s every 0.5 s, inside the match

@@ -57,7 +57,8 @@ def _offset(line: shapely.LineString, x: float, y: float) -> tuple[float, float]
     along = line.project(point)
     a, b = line.interpolate(max(along - 1.0, 0.0)), line.interpolate(min(along + 1.0, line.length))
     left = (b.x - a.x) * (y - a.y) - (b.y - a.y) * (x - a.x) > 0
-    return (1.0 if left else -1.0) * point.distance(line), along
+    distance = point.distance(line)
+    return (distance if left else -distance) or 0.0, along  # on the line: 0, not -0
 
 
 def report(db: str, scenario: str, n: int, seed: int) -> str:

@@ -23,11 +23,12 @@ ahead as (
         r.*,
         el.lane_run,
         el.lane_id as ego_lane_now_id,
-        -- the next frame at which the actor is ahead in the ego's lane (a running min over the later frames,
-        -- read backwards)
+        -- the first frame from this one on at which the actor is ahead in the ego's lane (a running min read
+        -- backwards, up to the current row: a frame that ends at 1 preceding does not run on Polars). At the
+        -- phase's frames the actor is beside, not in the lane, so it is the next one
         min(case when r.same_lane then r.frame end) over (
             partition by r.drive_id, r.ego_id, r.actor_id order by r.frame desc
-            rows between unbounded preceding and 1 preceding
+            rows between unbounded preceding and current row
         ) as entry_frame
     from relations as r
     inner join ego_lanes as el
