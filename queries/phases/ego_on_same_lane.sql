@@ -7,9 +7,9 @@
 -- Conditions (holds = all of them):
 --   actor_kind_ok        the actor is of one of the kinds
 --   actor_ahead          entirely ahead of the ego's front bumper (dx > 0 and lon_gap > 0)
---   actor_in_ego_lane    the actor's lane is the ego's lane or its direct successor/predecessor (same_lane). The
---                        ego's lane is the lane of its lane run (ego_lanes): while the ego drifts over the line
---                        it is still the old lane, up to the frame before its lane change is counted. Not the
+--   actor_in_ego_lane    the actor's lane is the ego's lane or one that continues it (same_lane). The ego's
+--                        lane is the lane its centre is in (ego_lanes); a lane change is dated at the crossing,
+--                        so the lane and the lane run switch on the same frame. Not the
 --                        lane after a left or right turn's lane unless the ego drives it in this lane run: a
 --                        car that has turned off is no longer ahead in the lane of an ego going on (tracks are
 --                        recorded, so the ego's own path is known); on the turn's lane it is still partly ahead
