@@ -149,34 +149,30 @@ old_lane as (
     group by p.drive_id, p.ego_id, p.frame, p.lane_id, p.transition_frame, p.side
 ),
 
-returns as (
+changes as (
+    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
+    -- tolerance away from the old lane (and from the lanes that continue it). The return is a window over the
+    -- transition's frames, not a second reading of old_lane joined back (which Spark evaluated differently from
+    -- DuckDB once nothing else read it)
     select
         drive_id,
         ego_id,
         transition_frame,
-        min(frame) as return_frame
-    from old_lane
-    where back_in_old_lane = 1 and frame > transition_frame
-    group by drive_id, ego_id, transition_frame
-),
-
-changes as (
-    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
-    -- tolerance away from the old lane (and from the lanes that continue it)
-    select
-        o.drive_id,
-        o.ego_id,
-        o.transition_frame,
-        o.side,
-        min(o.frame) as frame
-    from old_lane as o
-    left join returns as r
-        on o.drive_id = r.drive_id and o.ego_id = r.ego_id and o.transition_frame = r.transition_frame
-    where o.lane_id is not null
-        and (r.return_frame is null or o.frame < r.return_frame)
-        and o.back_in_old_lane = 0
-        and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
-    group by o.drive_id, o.ego_id, o.transition_frame, o.side
+        side,
+        min(frame) as frame
+    from (
+        select
+            *,
+            min(case when back_in_old_lane = 1 and frame > transition_frame then frame end) over (
+                partition by drive_id, ego_id, transition_frame
+            ) as return_frame
+        from old_lane
+    ) as o
+    where lane_id is not null
+        and (return_frame is null or frame < return_frame)
+        and back_in_old_lane = 0
+        and (old_lane_dist_m is null or old_lane_dist_m > $lane_calculation_tolerance_length_m)
+    group by drive_id, ego_id, transition_frame, side
 ),
 
 classed as (
