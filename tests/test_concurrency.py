@@ -221,7 +221,7 @@ def test_readers_see_only_published_states_while_runs_write_and_after_one_is_kil
 
 def hold_lock(db: Path) -> subprocess.Popen:
     """Another writer: a process that takes the writer lock of ``db`` and keeps it until killed."""
-    code = ("import sys, time; from logiq_sql import locking; locking.acquire(sys.argv[1]); print('held', "
+    code = ("import sys, time; from logiq_sql.storage import locking; locking.acquire(sys.argv[1]); print('held', "
             "flush=True); time.sleep(600)")
     proc = subprocess.Popen([sys.executable, "-c", code, str(db)], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
                             text=True)
