@@ -93,3 +93,33 @@ def test_the_harness_never_imports_the_matcher():
     found = [f"{name} imports {module}" for name, tree in trees.items() if name.startswith("logiq_sql.evaluation")
              for module, _ in logiq_imports(ast.walk(tree), set(trees)) if module.startswith("logiq_sql.matching")]
     assert not found, found
+
+
+# The tests by the layer they exercise first (the package's folders; "whole" for end-to-end checks of every layer),
+# so a change in a layer names its tests: python -m pytest -p no:xdist $(the files of that layer).
+TESTS_BY_LAYER = {
+    "core": ("test_errors", "test_sql"),
+    "spec": ("test_contract",),
+    "storage": ("test_concurrency", "test_interrupted", "test_step_cache", "test_keep"),
+    "ingestion": ("test_bad_input", "test_ingest_av2", "test_ingest_batch", "test_ingest_commonroad",
+                  "test_ingest_scenarionet", "test_ingest_sumo", "test_formats_opendrive", "test_formats_osi",
+                  "test_formats_sumo_folders", "test_localise", "test_localise_join", "test_accounting"),
+    "engines": ("test_polars", "test_spark", "test_spark_cluster", "test_spark_dataset", "test_shared_steps"),
+    "matching": ("test_phases", "test_relations", "test_relations_of", "test_relations_prune", "test_cut_out",
+                 "test_left_turn", "test_left_turn_real", "test_manoeuvres", "test_interval_oracle", "test_properties",
+                 "test_frames", "test_incremental", "test_determinism", "test_real_cases", "test_real_data"),
+    "outputs": ("test_replay", "test_pictures", "test_formats_export", "test_analysts"),
+    "evaluation": ("test_evaluate", "test_labels", "test_conflict_labels", "test_junction_regimes",
+                   "test_sumo_evaluation"),
+    "cli": ("test_cli_docs", "test_front_door", "test_scheduling"),
+    "whole": ("test_architecture", "test_golden", "test_baseline", "test_notebooks", "test_wheel"),
+}
+
+
+def test_every_test_file_names_its_layer():
+    from pathlib import Path
+
+    files = sorted(p.stem for p in Path(__file__).parent.glob("test_*.py"))
+    listed = sorted(name for names in TESTS_BY_LAYER.values() for name in names)
+    assert listed == files, "add the new test file to TESTS_BY_LAYER under the layer it tests"
+    assert set(TESTS_BY_LAYER) == {*LAYERS, "whole"}
