@@ -39,7 +39,7 @@ ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
 DEFAULT_SPARK_MASTER = "local[2]"
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
-INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
+INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
 
 
