@@ -4,6 +4,9 @@
 -- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps, $relation_kinds_csv
 --
+-- Joined on the integer keys ingest assigns (schema.TRACK_KEYS), which each row carries beside the ids:
+--   drive_key, ego_key, actor_key   integer keys of the drive, the ego and the actor (tracks.drive_key, actor_key)
+--
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
 -- object_relation_range apart for every other kind (people, cyclists, cones): close-object scenarios look
 -- within metres, lane-following ones up to a 5 s headway.
@@ -51,12 +54,15 @@ ego as (
         cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
-        on t.drive_id = el.drive_id and t.actor_id = el.ego_id and t.frame = el.frame
+        on t.drive_key = el.drive_key and t.actor_key = el.ego_key and t.frame = el.frame
     cross join (select -1 as d union all select 0 as d union all select 1 as d) as n
 ),
 
 pairs as (
     select
+        e.drive_key,
+        e.actor_key as ego_key,
+        a.actor_key,
         e.drive_id,
         e.actor_id as ego_id,
         a.actor_id,
@@ -88,10 +94,10 @@ pairs as (
         from tracks
         where instr($relation_kinds_csv, ',' || kind || ',') > 0
     ) as a
-        on e.drive_id = a.drive_id
+        on e.drive_key = a.drive_key
         and e.frame = a.frame
         and e.band = a.band
-        and e.actor_id <> a.actor_id
+        and e.actor_key <> a.actor_key
         and (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m) <= a.range_sq_m2
 ),
 
@@ -191,9 +197,9 @@ lane_relation as (
         beside.side as adjacent_side
     from measured as m
     inner join drive_inputs as d
-        on m.drive_id = d.drive_id
+        on m.drive_key = d.drive_key
     left join actor_lanes as al
-        on m.drive_id = al.drive_id and m.actor_id = al.actor_id and m.frame = al.frame
+        on m.drive_key = al.drive_key and m.actor_key = al.actor_key and m.frame = al.frame
     left join lane_neighbours as beside
         on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
     left join lane_line as line
@@ -248,5 +254,8 @@ select
         when root_plus_s > 0 and root_minus_s > 0 then least(root_plus_s, root_minus_s)
         when root_plus_s > 0 then root_plus_s
         when root_minus_s > 0 then root_minus_s
-    end as mttc_s
+    end as mttc_s,
+    drive_key,
+    ego_key,
+    actor_key
 from mttc_roots
