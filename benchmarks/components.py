@@ -3,8 +3,8 @@
     python -m benchmarks.components --tier M      # after `make bench TIER=M` wrote benchmarks/work/M/parquet
 
 Each part is the least a pipeline of this kind must do, written as one plain DuckDB statement over the tier's
-tracks.parquet (localisation: plain shapely over it and lanes.parquet), with nothing of logiq_sql around it but
-its constants (the static kinds, the 3 m range):
+tracks.parquet with nothing of logiq_sql around it but its constants (the static kinds, the chunk size);
+localisation is logiq_sql.localise's look-up over it and lanes.parquet:
 
     floor          the benchmark floor: scan + group-by over the track columns (benchmarks/tiers.py)
     window         one per-actor window (the previous sample), the least that speeds, headings, lane runs and
@@ -14,10 +14,9 @@ its constants (the static kinds, the 3 m range):
                    counted only: the least work behind any ego-actor relation; an equi-join on (drive, frame, x
                    band) as relations.sql pairs them (bands of 201 m, each ego row probing its band and the two
                    beside it: the cheapest pairing measured, benchmarks/README.md)
-    localisation   every moving row's lanes: the lanes whose bounding box grown by 3 m holds the point (an
-                   STRtree of them), then a point-in-polygon test against each; no distance, no direction, no
-                   rows written. The least a lane look-up against polygon lanes does; both cores (a thread each,
-                   with its own geometries)
+    localisation   every moving row's lanes within 3 m, with distance and heading difference: ingest's own
+                   look-up (logiq_sql.localise, compiled: its index built per map, then the pairs as arrays), no
+                   rows written; both cores (a thread each over half of a map's rows)
 
 The sum of these parts says how far any design of the pipeline could get: the issue-15 targets are 40x the floor
 end to end (which holds every part) and 3 M rows/s re-matching (which holds the pair join, not the rest).
@@ -36,11 +35,9 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
-import shapely
 
 from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
-from logiq_sql.localise import CHUNK_POINTS, STATIC_KINDS
-from logiq_sql.schema import LOCALISATION_RANGE_M as RANGE_M
+from logiq_sql.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
 
 PARTS = {
     "floor": FLOOR_SQL,
@@ -75,43 +72,35 @@ PARTS = {
 }
 
 
-def inside_count(wkb: np.ndarray, x: np.ndarray, y: np.ndarray) -> int:
-    """How many (point, lane) pairs have the point inside the lane, for the points whose lane boxes (grown by
-    RANGE_M) hold them; one thread's own geometries (GEOS ones are not safe to share between threads)."""
-    polygons = shapely.from_wkb(wkb)
-    b = shapely.bounds(polygons)
-    tree = shapely.STRtree(shapely.box(b[:, 0] - RANGE_M, b[:, 1] - RANGE_M, b[:, 2] + RANGE_M, b[:, 3] + RANGE_M))
-    shapely.prepare(polygons)
-    total = 0
-    for start in range(0, len(x), CHUNK_POINTS):
-        cx, cy = x[start:start + CHUNK_POINTS], y[start:start + CHUNK_POINTS]
-        row, lane = tree.query(shapely.points(cx, cy))
-        total += int(shapely.contains_xy(polygons[lane], cx[row], cy[row]).sum())
-    return total
+def pair_count(index: LaneIndex, x: np.ndarray, y: np.ndarray, heading: np.ndarray) -> int:
+    """How many (point, lane) pairs the look-up finds, chunk by chunk as ingest localises."""
+    return sum(len(index.locate(x[a:a + CHUNK_POINTS], y[a:a + CHUNK_POINTS], heading[a:a + CHUNK_POINTS])[0])
+               for a in range(0, len(x), CHUNK_POINTS))
 
 
 def localisation(path: Path) -> int:
-    """The localisation part: every moving row tested against the lanes of its drive's map, map by map, the rows
-    of a map split between two threads."""
+    """The localisation part: every moving row's lanes, map by map (the index built per map), the rows of a map
+    split between two threads; the (row, lane) pairs counted."""
     parquet = path.parent
     with duckdb.connect() as con:
         rows = con.sql("""
-            select d.map_id, t.x_m, t.y_m from read_parquet($tracks) as t
+            select d.map_id, t.x_m, t.y_m, coalesce(t.heading_rad, 0) as heading_rad from read_parquet($tracks) as t
             inner join read_parquet($drives) as d on t.drive_id = d.drive_id
             where not list_contains($static_kinds, t.kind) order by d.map_id""",
             params={"tracks": str(path), "drives": str(parquet / "drives.parquet"),
                     "static_kinds": list(STATIC_KINDS)}).pl()
-    lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "polygon_wkt"])
+    lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "lane_id", "polygon_wkt", "centerline_wkt"])
     total = 0
     with ThreadPoolExecutor(2) as pool:
         for (map_id,), on_map in rows.partition_by("map_id", as_dict=True, maintain_order=True).items():
-            polygons = lanes.filter(pl.col("map_id") == map_id)["polygon_wkt"].to_numpy()
-            if not len(polygons):
+            on_lanes = lanes.filter(pl.col("map_id") == map_id)
+            if on_lanes.is_empty():
                 continue
-            wkb = shapely.to_wkb(shapely.from_wkt(polygons))
-            x, y = on_map["x_m"].to_numpy(), on_map["y_m"].to_numpy()
+            index = LaneIndex(on_lanes)
+            x, y, h = (on_map[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))
             half = len(x) // 2
-            total += sum(pool.map(inside_count, [wkb, wkb], [x[:half], x[half:]], [y[:half], y[half:]]))
+            total += sum(pool.map(pair_count, [index, index], [x[:half], x[half:]], [y[:half], y[half:]],
+                                  [h[:half], h[half:]]))
     return total
 
 

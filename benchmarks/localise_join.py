@@ -1,9 +1,10 @@
-"""Map localisation as a relational join (issue 15): EXACT BUT NOT FASTER, SO NOT WIRED IN. Ingest still localises
-with shapely (``logiq_sql/localise.py``, the reference); this module and ``benchmarks/localise_join_sql/`` are the
-measured alternative, kept for a later attempt. On the base drives (1,305,714 rows, 103 maps) it gave the same
+"""Map localisation as a relational join (issue 15): EXACT BUT NOT FASTER, SO NOT WIRED IN. Ingest localised with
+shapely then (``benchmarks/shapely_lanes.py``, the reference here; since issue 33 ``logiq_sql/localise.py``
+computes the same rows compiled); this module and ``benchmarks/localise_join_sql/`` are the measured alternative,
+kept for a later attempt. On the base drives (1,305,714 rows, 103 maps) it gave the same
 3,253,293 rows and cost about 22 CPU s against shapely's 10 (``benchmarks/README.md``, section of 2026-11-26).
 
-Same rows as ``logiq_sql.localise.locate``: for every track row of a moving kind, every lane polygon within
+Same rows as ``benchmarks.shapely_lanes.shapely_locate``: for every track row of a moving kind, every lane polygon within
 ``LOCALISATION_RANGE_M`` (3 m) of the box centre, its distance (0 inside) and the heading minus the direction of the
 centre-line segment at ``line_locate_point`` of the point.
 
@@ -43,9 +44,9 @@ import numpy as np
 import polars as pl
 import shapely
 
+from benchmarks.shapely_lanes import shapely_locate as reference_locate
 from logiq_sql import db, schema
 from logiq_sql.localise import LaneIndex
-from logiq_sql.localise import locate as reference_locate
 
 CELL_M = 1.0  # a power of two: x * (1 / CELL_M) and its floor are exact, in numpy as in SQL
 SLACK_M = 1e-6  # every pruning distance is widened by this: pieces a rounding error could need are kept
@@ -277,7 +278,7 @@ def insert_track_lanes(con: duckdb.DuckDBPyConnection, lanes: pl.DataFrame, grid
 
 def join_locate(tracks: pl.DataFrame, lanes: pl.DataFrame) -> pl.DataFrame:
     """Rows of ``track_lanes`` for ``tracks`` (drives on one map) against ``lanes`` (that map), on an in-memory
-    DuckDB, as ``logiq_sql.localise.locate`` gives them."""
+    DuckDB, as ``benchmarks.shapely_lanes.shapely_locate`` gives them."""
     con = duckdb.connect()
     try:
         db.create_table(con, schema.TRACK_LANES)
@@ -291,9 +292,9 @@ def join_locate(tracks: pl.DataFrame, lanes: pl.DataFrame) -> pl.DataFrame:
 
 
 def main(argv: list[str] | None = None) -> dict[str, object]:
-    """Old (shapely ``locate`` map by map, as ingest runs it, and the insert of its rows) against new (the grid,
-    then ``track_lanes.sql``: map by map, and for all maps at once as one ingest batch) on the base drives, in
-    one process: CPU and wall seconds, and whether the rows agree."""
+    """Old (the shapely look-up map by map, as ingest ran it before issue 33 but on one thread, and the insert of
+    its rows) against new (the grid, then ``track_lanes.sql``: map by map, and for all maps at once as one ingest
+    batch) on the base drives, in one process: CPU and wall seconds, and whether the rows agree."""
     from benchmarks.tiers import WORK
 
     base = Path((argv or sys.argv[1:] or [str(WORK / "base")])[0])

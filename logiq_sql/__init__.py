@@ -16,6 +16,7 @@ Every option is keyword-only; errors name the Python argument (``overrides['max_
 
 from __future__ import annotations
 
+from importlib.metadata import version
 from pathlib import Path
 
 import duckdb
@@ -39,7 +40,7 @@ __all__ = [
     "FramesResult", "InputError", "LogiqError", "MatchResult", "ScenarioError", "UnitError", "connect", "ingest",
     "list_scenarios", "load_scenario", "match", "match_dataset", "match_frames", "render",
 ]
-__version__ = "0.1.0"
+__version__ = version("logiq-sql")  # from the installed metadata: pyproject.toml is the one place
 
 
 def connect(path: str | Path, *, read_only: bool = True) -> duckdb.DuckDBPyConnection:

@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 from logiq_sql.errors import DiskFullError, FileBusyError, LogiqError
@@ -22,7 +23,7 @@ EPILOG = ("Docs: README.md and docs/ in the repository. Exit codes: 0 done, 1 un
           "3 ingest done but some drives rejected, 4 another run is writing the file, 5 disk full.")
 DB_ENV = "LOGIQ_SQL_DB"  # the default of --db on every command that takes one
 # how the CLI spells the Python arguments that library errors name (logiq_sql.errors.arg)
-FLAGS = {"overrides": "--set", "drives": "--drive", "db_path": "--db", "name": "NAME"}
+FLAGS = {"overrides": "--set", "drives": "--drive", "db_path": "--db", "name": "NAME", "wait_s": "--wait"}
 QUERY_FORMATS = ("table", "csv", "json", "markdown")
 TABLE_ROWS = 40  # rows `query --format table` prints unless --limit says otherwise
 
@@ -606,12 +607,10 @@ def _add_harness(harness, hidden: bool = False) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from logiq_sql import __version__
-
     parser = argparse.ArgumentParser(
         prog="logiq-sql", description="Find LogIQ evaluation scenarios in drives with SQL over DuckDB.",
         epilog=EPILOG)
-    parser.add_argument("--version", action="version", version=f"logiq-sql {__version__}")
+    parser.add_argument("--version", action="version", version=f"logiq-sql {version('logiq-sql')}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (add_ingest, add_match, add_scenarios, add_lint, add_new_scenario, add_render, add_explain, add_query,
                 add_info, add_report, add_replay, add_export, add_eval):
@@ -634,10 +633,10 @@ def _run(argv: list[str]) -> int:
         print(f"logiq-sql: error: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except FileBusyError as exc:
-        print(f"logiq-sql: busy: {exc}", file=sys.stderr)
+        print(f"logiq-sql: busy: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_BUSY
     except DiskFullError as exc:
-        print(f"logiq-sql: disk full: {exc}", file=sys.stderr)
+        print(f"logiq-sql: disk full: {exc.render(FLAGS)}", file=sys.stderr)
         return EXIT_DISK_FULL
 
 

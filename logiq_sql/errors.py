@@ -27,8 +27,8 @@ def _python(m: re.Match) -> str:
     return f"{name}={value!r}" if value else f"{name}="
 
 
-class LogiqError(ValueError):
-    """Base of every error logiq_sql raises on bad input."""
+class SpeltArguments:
+    """A message whose arguments (``arg``) read as Python names by default and as flags when the CLI renders it."""
 
     def render(self, flags: Mapping[str, str] | None = None) -> str:
         """The message; with ``flags`` (Python argument -> command-line flag) the arguments read as flags."""
@@ -47,6 +47,10 @@ class LogiqError(ValueError):
         return self.render()
 
 
+class LogiqError(SpeltArguments, ValueError):
+    """Base of every error logiq_sql raises on bad input."""
+
+
 class ScenarioError(LogiqError):
     """A scenario file or a parameter override is wrong."""
 
@@ -59,11 +63,11 @@ class InputError(LogiqError):
     """A data file cannot be trusted (missing columns, corrupt, unsafe)."""
 
 
-class FileBusyError(RuntimeError):
+class FileBusyError(SpeltArguments, RuntimeError):
     """Another run is writing the DuckDB file (it holds the writer lock): nothing was done."""
 
 
-class DiskFullError(RuntimeError):
+class DiskFullError(SpeltArguments, RuntimeError):
     """The disk filled up during a run: the run stopped and the published file is as it was."""
 
 

@@ -68,6 +68,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
+LOCATED = schema.TRACK_LANES.column_names  # what locate gives, in track_lanes' order (its keys follow)
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
 INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
@@ -150,41 +151,11 @@ MAX_MEDIAN_SPEED_MPS = 100.0  # 360 km/h as the median speed of a drive's moving
 
 
 def clean_tracks(drive: DriveData) -> tuple[pl.DataFrame, int, list[str]]:
-    """Check a reader's rows: kinds known, values finite and plausible, one row per (actor, frame), sizes filled.
-
-    Returns the kept rows, how many were dropped and the reasons. Raises InputError when the whole drive is in
-    a wrong unit (nothing of it can be trusted).
-    """
-    tracks = drive.tracks
-    where = f"{drive.source_path}: drive '{drive.drive_id}'"
-    missing = [c for c in ("drive_id", "actor_id", "kind", "frame", "t_s", "x_m", "y_m") if c not in tracks.columns]
-    if missing:
-        raise InputError(f"{drive.source_path}: tracks lack column(s) {', '.join(missing)}.")
-    bad_kinds = sorted(set(tracks["kind"].drop_nulls().unique().to_list()) - set(schema.OBJECT_KINDS))
-    if bad_kinds:
-        raise InputError(
-            f"{drive.source_path}: column 'kind' has unknown value(s) {', '.join(map(repr, bad_kinds))}."
-            f"{did_you_mean(str(bad_kinds[0]), schema.OBJECT_KINDS)}\n\n"
-            f"Hint: kinds are the spec's evaluation_object_kind values: {', '.join(schema.OBJECT_KINDS)}."
-        )
-    _check_units(tracks, drive.dt_s, where)
-    reasons: list[str] = []
-    # rows that cannot be placed (no actor, kind or frame) or whose time or position is not a usable number
-    keys_ok, finite, in_range = _row_checks()
-    # each dropped row is counted under its first failing check
-    counts = tracks.select((~finite).sum().alias("finite"), (finite & ~in_range).sum().alias("range"),
-                           (finite & in_range & ~keys_ok).sum().alias("keys")).row(0, named=True)
-    reasons += _dropped_reasons(counts["finite"], counts["range"], counts["keys"])
-    kept = tracks.filter(keys_ok & finite & in_range)
-    for col, limit in _BROKEN_LIMITS:
-        broken = kept[col].is_finite() & (kept[col].abs() > limit)
-        if broken.any():
-            reasons.append(_broken_reason(broken.sum(), col, limit))
-            kept = kept.with_columns(pl.when(broken).then(None).otherwise(pl.col(col)).alias(col))
-    deduped, dup_reasons = _one_row_per_frame(kept, drive.dt_s)
-    reasons += dup_reasons
-    filled = _filled(deduped).select(schema.TRACKS.column_names).sort("actor_id", "frame")
-    return filled, tracks.height - deduped.height, reasons
+    """``clean_batch`` of one drive: its kept rows, how many were dropped and the reasons; raises its InputError."""
+    (result,) = clean_batch([drive])
+    if isinstance(result, InputError):
+        raise result
+    return result
 
 
 _BROKEN_LIMITS = (("speed_mps", MAX_ABS_SPEED_MPS), ("accel_mps2", MAX_ABS_ACCEL_MPS2))
@@ -254,83 +225,62 @@ def _one_row_per_frame(rows: pl.DataFrame, dt_s: float) -> tuple[pl.DataFrame, l
     return nearest, reasons
 
 
-def _check_units(tracks: pl.DataFrame, dt_s: float, where: str) -> None:
-    """Reject a drive whose time, positions or headings are evidently in another unit: every match on it would
-    be wrong, silently."""
-    if dt_s and math.isfinite(dt_s) and dt_s > MAX_DT_S:
-        raise InputError(f"{where}: the sample period dt_s is {dt_s:g} s. Fix: write t_s in seconds (milliseconds "
-                         "divided by 1000) and dt_s in seconds.")
-    if "heading_rad" in tracks.columns:
-        worst = tracks.select(pl.col("heading_rad").filter(pl.col("heading_rad").is_finite()).abs().max()).item()
-        if worst is not None and worst > MAX_ABS_HEADING_RAD:
-            raise InputError(f"{where}: column 'heading_rad' reaches {worst:g}, more than one turn (2 pi). Fix: "
-                             "write headings in radians (degrees * pi / 180).")
-    ok = pl.all_horizontal(pl.col(c).is_finite() for c in ("t_s", "x_m", "y_m"))
-    steps = (
-        tracks.filter(ok & pl.col("actor_id").is_not_null() & pl.col("frame").is_not_null())
-        .sort("actor_id", "frame")
-        .select(
-            frames=pl.col("frame").diff().over("actor_id"),
-            speed=((pl.col("x_m").diff() ** 2 + pl.col("y_m").diff() ** 2).sqrt()
-                   / pl.col("t_s").diff()).over("actor_id"),
-        )
-        .filter(pl.col("frames") > 0)
-    )
-    if steps.is_empty():
-        return
-    frame_step = steps["frames"].median()
-    if frame_step >= 2:
-        raise InputError(f"{where}: consecutive samples of an actor are a median {frame_step:g} frames apart, so "
-                         f"the timestamps do not step by dt_s = {dt_s:g} s. Fix: write t_s in seconds and give the "
-                         "drive's true sample period as dt_s (drives.parquet), or leave dt_s out to derive it.")
-    moving = steps.filter(pl.col("speed").is_finite() & (pl.col("speed") > 0.5))["speed"]
-    if moving.len() and moving.median() > MAX_MEDIAN_SPEED_MPS:
-        raise InputError(f"{where}: actors move at a median {moving.median():,.0f} m/s between samples. Fix: write "
-                         "x_m and y_m in metres (millimetres divided by 1000) and t_s in seconds.")
+def clean_batch(drives: list[DriveData]) -> list[tuple[pl.DataFrame, int, list[str]] | InputError]:
+    """Check the rows of many drives with one set of rules, each rule evaluated over all their rows at once (a
+    drive's rows stay apart by its position in ``drives``); a batch of one drive is checked by the same code.
 
-
-def clean_batch(drives: list[DriveData]) -> dict[int, tuple[pl.DataFrame, int, list[str]]]:
-    """``clean_tracks`` of many drives at once: each rule's facts for every drive in one pass over all their rows
-    (a drive's rows stay apart by its position in ``drives``), instead of some 40 Polars operations per drive.
-
-    Returns, by position in ``drives``, what ``clean_tracks`` returns for each drive that no rule rejects and
-    that has no two rows of an actor in one frame or at one t_s (the usual case). Left out, for ``clean_tracks``
-    itself (which then gives the exact rejection, message and duplicate handling): drives that some rule may
-    reject, drives with such duplicates, empty drives and drives whose tracks are not in the canonical columns
-    and types.
+    For each drive, in order: the InputError that rejects it (a column missing; an unknown kind; the whole drive
+    evidently in another unit: sample period, headings, frame steps or speeds, docs/semantics.md "Bad input"), or
+    its kept rows (sorted by actor_id, frame), how many rows were dropped and the reasons. Rows that cannot be
+    placed, or whose time or position is not a usable number, are dropped (each counted under its first failing
+    check); broken speeds and accelerations become NULL; one row per (actor, frame) (``_one_row_per_frame``);
+    optional values filled (``_filled``).
     """
-    pick = [i for i, d in enumerate(drives) if d.tracks.height and d.tracks.schema == schema.TRACKS.polars_schema
-            and not (d.dt_s and math.isfinite(d.dt_s) and d.dt_s > MAX_DT_S)]
+    results: list = [None] * len(drives)
+    pick = []
+    for i, drive in enumerate(drives):
+        missing = [c for c in ("drive_id", "actor_id", "kind", "frame", "t_s", "x_m", "y_m")
+                   if c not in drive.tracks.columns]
+        if missing:
+            results[i] = InputError(f"{drive.source_path}: tracks lack column(s) {', '.join(missing)}.")
+        elif drive.tracks.is_empty():
+            results[i] = _rejection(drive, {"bad_kinds": [], "heading": None, "frame_step": None, "moving": None}
+                                    ) or (schema.empty(schema.TRACKS), 0, [])
+        else:
+            pick.append(i)
     if not pick:
-        return {}
+        return results
     keys_ok, finite, in_range = _row_checks()
-    position = pl.Series("_d", np.repeat(np.arange(len(pick), dtype=np.uint32),
-                                         [drives[i].tracks.height for i in pick])).set_sorted()
-    frames = [drives[i].tracks for i in pick]
+    frames = [drives[i].tracks if drives[i].tracks.schema == schema.TRACKS.polars_schema
+              else drives[i].tracks.select(pl.col(c).cast(t) for c, t in schema.TRACKS.polars_schema.items())
+              for i in pick]
+    position = pl.Series("_d", np.repeat(np.arange(len(pick), dtype=np.uint32), [f.height for f in frames])
+                         ).set_sorted()
     rows = pl.concat(frames).with_columns(position)
-    # one order for the unit checks and the output, (drive, actor_id, frame): the rows of a drive that reach
-    # either have unique (actor_id, frame) (a drive with a repeated one is left out), so this is the order
-    # clean_tracks sorts them into. Readers mostly give it already: only the drives out of it are sorted.
+    # one order for the rules and the output, (drive, actor_id, frame), ties in the order given. Readers mostly
+    # give it already: only the drives out of it are sorted
     after = ~pl.col("_d").eq(pl.col("_d").shift()).fill_null(False) | pl.col("actor_id").gt(
         pl.col("actor_id").shift()) | (pl.col("actor_id").eq(pl.col("actor_id").shift())
-                                       & pl.col("frame").gt(pl.col("frame").shift()))
+                                       & pl.col("frame").ge(pl.col("frame").shift()))
     unsorted = rows.filter(~after.fill_null(False))["_d"].unique().to_list()
     if unsorted:
         for d in unsorted:
-            frames[d] = frames[d].sort("actor_id", "frame")
+            frames[d] = frames[d].sort("actor_id", "frame", maintain_order=True)
         rows = pl.concat(frames).with_columns(position)
+    del frames
     # after the previous row of the same actor of the same drive (False on a drive's or an actor's first row)
     same_track = (pl.col("_d").eq(pl.col("_d").shift()) & pl.col("actor_id").eq(pl.col("actor_id").shift())
                   ).fill_null(False)
     placed = pl.col("actor_id").is_not_null() & pl.col("frame").is_not_null()
+    unknown = pl.col("kind").is_not_null() & ~pl.col("kind").is_in(schema.OBJECT_KINDS)
     facts = rows.group_by("_d").agg(
-        bad_kind=(pl.col("kind").is_not_null() & ~pl.col("kind").is_in(schema.OBJECT_KINDS)).any(),
+        bad_kinds=pl.col("kind").filter(unknown).unique(),
         heading=pl.col("heading_rad").filter(pl.col("heading_rad").is_finite()).abs().max(),
         finite=(~finite).sum(), range=(finite & ~in_range).sum(), keys=(finite & in_range & ~keys_ok).sum(),
         rows=pl.len(),
     )
-    # _check_units's steps: consecutive samples of an actor, their frame step and speed; a repeated (actor_id,
-    # frame) is a frame step of 0 here (the rows are in order), and its drive is left out
+    # consecutive samples of an actor (rows that can be placed, with finite time and position): their frame
+    # step and speed; the medians over steps that advance the frame (the speed only where above 0.5 m/s)
     ok = pl.all_horizontal(pl.col(c).is_finite() for c in ("t_s", "x_m", "y_m"))
     steps = (
         rows.filter(ok & placed)
@@ -341,8 +291,7 @@ def clean_batch(drives: list[DriveData]) -> dict[int, tuple[pl.DataFrame, int, l
                                            / pl.col("t_s").diff()),
         )
         .group_by("_d")
-        .agg(repeated=(pl.col("frames") <= 0).any(),
-             frame_step=pl.col("frames").filter(pl.col("frames") > 0).median(),
+        .agg(frame_step=pl.col("frames").filter(pl.col("frames") > 0).median(),
              moving=pl.col("speed").filter((pl.col("frames") > 0) & pl.col("speed").is_finite()
                                            & (pl.col("speed") > 0.5)).median())
     )
@@ -351,31 +300,69 @@ def clean_batch(drives: list[DriveData]) -> dict[int, tuple[pl.DataFrame, int, l
         keys_ok & finite & in_range)
     del rows
     broken = {col: pl.col(col).is_finite() & (pl.col(col).abs() > limit) for col, limit in _BROKEN_LIMITS}
-    # no two rows of an actor at one t_s: t_s rises from frame to frame (else the drive is left out)
-    kept_facts = kept.with_columns(same_t=same_track & ~(pl.col("t_s") > pl.col("t_s").shift())).group_by("_d").agg(
-        same_t=pl.col("same_t").any(), kept=pl.len(), **{col: b.sum() for col, b in broken.items()})
+    # a drive where an actor may have two rows in one frame or at one t_s (the frame or t_s not rising from one
+    # of its rows to the next) goes through _one_row_per_frame
+    kept_facts = kept.with_columns(repeats=same_track & ~((pl.col("frame") > pl.col("frame").shift())
+                                                          & (pl.col("t_s") > pl.col("t_s").shift()))
+                                   ).group_by("_d").agg(repeats=pl.col("repeats").any(), kept=pl.len(),
+                                                        **{col: b.sum() for col, b in broken.items()})
     facts = (facts.join(steps, on="_d", how="left").join(kept_facts, on="_d", how="left")
-             .with_columns(pl.col("kept").fill_null(0)))
-    # a median a hair below a limit goes to clean_tracks too: its own median decides (exact by construction)
-    fails = (pl.col("bad_kind") | (pl.col("heading") > MAX_ABS_HEADING_RAD) | (pl.col("frame_step") >= 2)
-             | (pl.col("moving") > MAX_MEDIAN_SPEED_MPS * (1 - 1e-9)) | pl.col("repeated") | pl.col("same_t"))
-    passed = facts.filter(~fails.fill_null(False)).sort("_d")
-    if passed.is_empty():
-        return {}
-    out = (
-        (kept if passed.height == facts.height else kept.filter(pl.col("_d").is_in(passed["_d"].implode())))
-        .with_columns(pl.when(b).then(None).otherwise(pl.col(col)).alias(col) for col, b in broken.items())
-        .pipe(_filled)
-        .select(schema.TRACKS.column_names)
-    )
-    results = {}
+             .with_columns(pl.col("kept").fill_null(0), pl.col("repeats").fill_null(False)).sort("_d"))
+    kept = kept.with_columns(pl.when(b).then(None).otherwise(pl.col(col)).alias(col) for col, b in broken.items())
+    # the drives with repeats as they are before filling (NaN and NULL differ when telling copies apart)
+    repeating = facts.filter(pl.col("repeats"))["_d"]
+    unfilled = kept.filter(pl.col("_d").is_in(repeating.implode())).partition_by(
+        "_d", as_dict=True, include_key=False) if repeating.len() else {}
+    out = kept.pipe(_filled).select(*schema.TRACKS.column_names, "_d")
+    del kept
     offset = 0
-    for fact in passed.iter_rows(named=True):
+    for fact in facts.iter_rows(named=True):  # per drive: the decision and its message, the drive's slice
+        drive = drives[pick[fact["_d"]]]
+        mine = out.slice(offset, fact["kept"])
+        offset += fact["kept"]
+        rejection = _rejection(drive, fact)
+        if rejection is not None:
+            results[pick[fact["_d"]]] = rejection
+            continue
         reasons = _dropped_reasons(fact["finite"], fact["range"], fact["keys"])
         reasons += [_broken_reason(fact[col], col, limit) for col, limit in _BROKEN_LIMITS if fact[col]]
-        results[pick[fact["_d"]]] = (out.slice(offset, fact["kept"]), fact["rows"] - fact["kept"], reasons)
-        offset += fact["kept"]
+        mine = mine.drop("_d")
+        if fact["repeats"]:
+            mine, dup_reasons = _one_row_per_frame(unfilled[(fact["_d"],)], drive.dt_s)
+            mine = _filled(mine).select(schema.TRACKS.column_names).sort("actor_id", "frame")
+            reasons += dup_reasons
+        results[pick[fact["_d"]]] = (mine, fact["rows"] - mine.height, reasons)
     return results
+
+
+def _rejection(drive: DriveData, fact: dict) -> InputError | None:
+    """Why the whole drive is refused (its rows in another unit, an unknown kind), from its facts, or None."""
+    where = f"{drive.source_path}: drive '{drive.drive_id}'"
+    dt_s = drive.dt_s
+    if fact["bad_kinds"]:
+        bad_kinds = sorted(fact["bad_kinds"])
+        return InputError(
+            f"{drive.source_path}: column 'kind' has unknown value(s) {', '.join(map(repr, bad_kinds))}."
+            f"{did_you_mean(str(bad_kinds[0]), schema.OBJECT_KINDS)}\n\n"
+            f"Hint: kinds are the spec's evaluation_object_kind values: {', '.join(schema.OBJECT_KINDS)}."
+        )
+    if dt_s and math.isfinite(dt_s) and dt_s > MAX_DT_S:
+        return InputError(f"{where}: the sample period dt_s is {dt_s:g} s. Fix: write t_s in seconds (milliseconds "
+                          "divided by 1000) and dt_s in seconds.")
+    worst = fact["heading"]
+    if worst is not None and worst > MAX_ABS_HEADING_RAD:
+        return InputError(f"{where}: column 'heading_rad' reaches {worst:g}, more than one turn (2 pi). Fix: "
+                          "write headings in radians (degrees * pi / 180).")
+    frame_step = fact["frame_step"]
+    if frame_step is not None and frame_step >= 2:
+        return InputError(f"{where}: consecutive samples of an actor are a median {frame_step:g} frames apart, so "
+                          f"the timestamps do not step by dt_s = {dt_s:g} s. Fix: write t_s in seconds and give the "
+                          "drive's true sample period as dt_s (drives.parquet), or leave dt_s out to derive it.")
+    moving = fact["moving"]
+    if moving is not None and moving > MAX_MEDIAN_SPEED_MPS:
+        return InputError(f"{where}: actors move at a median {moving:,.0f} m/s between samples. Fix: write "
+                          "x_m and y_m in metres (millimetres divided by 1000) and t_s in seconds.")
+    return None
 
 
 def _row_checks() -> tuple[pl.Expr, pl.Expr, pl.Expr]:
@@ -396,13 +383,14 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     written: list[tuple[DriveData, int]] = []
     # a drive read twice into one batch (a file named twice) is written once, as a later ingest would replace it
     unique = list({d.drive_id: d for d in drives}.values())
-    # the checks of the whole batch at once; a drive they leave out is checked on its own (rejections, duplicates)
-    cleaned = clean_batch(unique)  # drives without rows are left out
-    for i, drive in enumerate(unique):
+    cleaned = clean_batch(unique)  # the checks of the whole batch at once
+    for drive, result in zip(unique, cleaned, strict=True):
         try:
             if drive.tracks.is_empty() and drive.reject_reason:
                 raise InputError(drive.reject_reason)
-            tracks, dropped, reasons = cleaned[i] if i in cleaned else clean_tracks(drive)
+            if isinstance(result, InputError):
+                raise result
+            tracks, dropped, reasons = result
             if tracks.is_empty():
                 raise InputError(f"{drive.source_path}: drive '{drive.drive_id}' has no usable track rows"
                                  + (f" ({'; '.join(reasons)})." if reasons else "."))
@@ -451,7 +439,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             if not located.is_empty():
                 # the row's keys from tracks, stored in (drive, actor, frame) order as tracks are
                 con.register("_located", located)
-                con.execute("insert into track_lanes select l.*, t.drive_key, t.actor_key, t.row_key "
+                con.execute(f"insert into track_lanes select {', '.join('l.' + c for c in LOCATED)}, "
+                            "t.drive_key, t.actor_key, t.row_key "
                             "from _located as l inner join tracks as t on t.drive_id = l.drive_id "
                             "and t.actor_id = l.actor_id and t.frame = l.frame "
                             "order by t.drive_key, t.row_key, l.lane_id")

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from logiq_sql.errors import FileBusyError
+from logiq_sql.errors import FileBusyError, arg
 
 LOCK_SUFFIX = ".lock"
 SAY_EVERY_S = 10.0  # a waiting writer prints one progress line this often
@@ -72,7 +72,7 @@ def acquire(db_path: str | Path, wait_s: float = 0.0, progress: Callable[[str], 
                 os.close(fd)
                 raise FileBusyError(
                     f"{db_path}: another run is writing it: {holder(db_path)}. Readers are not affected. Wait for "
-                    f"it with --wait SECONDS{f' (waited {waited:.0f} s)' if wait_s else ''}, or stop that process "
+                    f"it with {arg('wait_s', 60)} (seconds){f' (waited {waited:.0f} s)' if wait_s else ''}, or stop that process "
                     "if it should not run.") from None
             if progress and (said is None or waited - said >= SAY_EVERY_S):
                 progress(f"waiting for {holder(db_path)} to finish writing {db_path} "

@@ -16,10 +16,13 @@ from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
 from logiq_sql.db import connect
 
-PHASE_COLOURS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3", "#937860")
+# phases: a qualitative palette clear of the ego's blue, the actor's red, the grey of other road users, the tan of
+# junctions and the replay's measure colours (replay.SERIES_COLOURS)
+PHASE_COLOURS = ("#1b9e77", "#e7298a", "#66a61e", "#17becf", "#bcbd22", "#8c564b")
 EGO_COLOUR, ACTOR_COLOUR, EMPTY_COLOUR = "#1f4e9c", "#c0392b", "#d62728"
 SPECIAL_BUCKETS = ("out_of_range", "missing")  # coverage rows that are not buckets of the item
 
@@ -122,8 +125,8 @@ def birds_eye(db: str | Path | duckdb.DuckDBPyConnection, match_id: str, margin_
     ax.set_xlim(box.bounds[0], box.bounds[2])
     ax.set_ylim(box.bounds[1], box.bounds[3])
     ax.set_aspect("equal")
-    ax.set_xlabel("x_m")
-    ax.set_ylabel("y_m")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
     handles, labels = ax.get_legend_handles_labels()
     if not junctions.is_empty():
         handles.append(Patch(facecolor="#f5c16c", edgecolor="#b07d1a", alpha=0.45))
@@ -134,8 +137,22 @@ def birds_eye(db: str | Path | duckdb.DuckDBPyConnection, match_id: str, margin_
     return fig
 
 
-def coverage_histogram(coverage: pl.DataFrame, scenario: str, item: str, ax: Axes) -> None:
-    """Hits per bucket of one coverage item, empty buckets marked in red, out_of_range / missing at the end."""
+def _wrapped(name: str, width: int = 34) -> str:
+    """A snake_case name broken at underscores into lines of at most ``width`` characters (titles that fit their
+    panel instead of running into the next one)."""
+    lines = [""]
+    for part in name.split("_"):
+        piece = part if not lines[-1] else "_" + part
+        if lines[-1] and len(lines[-1]) + len(piece) > width:
+            lines.append("_" + part)
+        else:
+            lines[-1] += piece
+    return "\n".join(lines)
+
+
+def coverage_histogram(coverage: pl.DataFrame, scenario: str, item: str, ax: Axes, unit: str | None = None) -> None:
+    """Hits per bucket of one coverage item, empty buckets marked in red, out_of_range / missing at the end; a
+    numeric item's buckets and axis carry its ``unit``."""
     rows = coverage.filter((pl.col("scenario") == scenario) & (pl.col("item") == item)).with_columns(
         pl.col("bucket").is_in(SPECIAL_BUCKETS).alias("special")).sort("special", "bucket_index", nulls_last=True)
     # out_of_range and missing only when they hold samples: they are not buckets to fill
@@ -149,20 +166,26 @@ def coverage_histogram(coverage: pl.DataFrame, scenario: str, item: str, ax: Axe
         ax.axvspan(p - 0.45, p + 0.45, color=EMPTY_COLOUR, alpha=0.12, linewidth=0)
         ax.text(p, top * 0.02, "0", color=EMPTY_COLOUR, ha="center", va="bottom", fontsize=7)
     ax.set_ylim(0, top * 1.1)
-    ax.set_xticks(pos, rows["bucket"].to_list(), rotation=60, ha="right", fontsize=6)
+    numeric = rows["lo"].is_not_null().to_numpy()
+    labels = [f"{b} {unit}" if unit and n else b for b, n in zip(rows["bucket"], numeric, strict=True)]
+    ax.set_xticks(pos, labels, rotation=90, ha="center", fontsize=6)  # upright boxes: checkably apart
+    ax.set_xlabel(f"value ({unit})" if unit and numeric.any() else "value", fontsize=7)
+    ax.set_ylabel("matches", fontsize=7)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts: no 2.5 matches
     buckets = ~rows["special"].to_numpy()
-    ax.set_title(f"{item}: {int((empty & buckets).sum())} of {int(buckets.sum())} buckets empty", fontsize=8)
+    ax.set_title(f"{_wrapped(item)}\n{int((empty & buckets).sum())} of {int(buckets.sum())} buckets empty", fontsize=7)
     ax.tick_params(axis="y", labelsize=7)
 
 
-def coverage_grid(coverage: pl.DataFrame, scenario: str, columns: int = 3) -> Figure:
-    """Every coverage item of a scenario, one histogram each."""
+def coverage_grid(coverage: pl.DataFrame, scenario: str, columns: int = 3,
+                  units: dict[str, str] | None = None) -> Figure:
+    """Every coverage item of a scenario, one histogram each; ``units`` maps an item to its unit."""
     items = coverage.filter(pl.col("scenario") == scenario)["item"].unique().sort().to_list()
     n_rows = max(-(-len(items) // columns), 1)
-    fig = Figure(figsize=(3.4 * columns, 2.9 * n_rows), layout="constrained")
+    fig = Figure(figsize=(3.4 * columns, 3.2 * n_rows), layout="constrained")
     axes = fig.subplots(n_rows, columns, squeeze=False).ravel()
     for item, ax in zip(items, axes, strict=False):
-        coverage_histogram(coverage, scenario, item, ax)
+        coverage_histogram(coverage, scenario, item, ax, (units or {}).get(item))
     for ax in axes[len(items):]:
         ax.set_visible(False)
     fig.suptitle(f"coverage of {scenario} (red: empty buckets)", fontsize=10)
@@ -175,20 +198,23 @@ def kpi_columns(kpis: pl.DataFrame, scenario: str) -> list[str]:
     return [c for c, t in rows.schema.items() if t.is_numeric() and rows[c].drop_nulls().drop_nans().len() > 0]
 
 
-def kpi_grid(kpis: pl.DataFrame, scenario: str, columns: int = 4) -> Figure:
-    """The distribution of every numeric KPI of a scenario over its matches."""
+def kpi_grid(kpis: pl.DataFrame, scenario: str, columns: int = 4, units: dict[str, str] | None = None) -> Figure:
+    """The distribution of every numeric KPI of a scenario over its matches; ``units`` maps a column to its unit
+    (the x axis label)."""
     rows = kpis.filter(pl.col("scenario") == scenario)
     names = kpi_columns(kpis, scenario)
     n_rows = max(-(-len(names) // columns), 1)
-    fig = Figure(figsize=(2.8 * columns, 2.2 * n_rows), layout="constrained")
+    fig = Figure(figsize=(2.8 * columns, 2.4 * n_rows), layout="constrained")
     axes = fig.subplots(n_rows, columns, squeeze=False).ravel()
     for name, ax in zip(names, axes, strict=False):
         values = rows[name].drop_nulls().drop_nans().to_numpy()
         ax.hist(values, bins=min(20, max(len(np.unique(values)), 1)), color="#55a868")
-        ax.set_title(f"{name}\n(n = {len(values)})", fontsize=7)
+        ax.set_title(f"{_wrapped(name, 30)}\n(n = {len(values)})", fontsize=7)
+        ax.set_xlabel((units or {}).get(name, "value"), fontsize=7)
+        ax.set_ylabel("matches", fontsize=7)
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         ax.tick_params(labelsize=6)
     for ax in axes[len(names):]:
         ax.set_visible(False)
     fig.suptitle(f"KPIs of {scenario} over {rows.height} match(es)", fontsize=10)
     return fig
-

@@ -4,8 +4,10 @@
 headway and TTC from ``queries/relations/relations.sql`` itself) and encodes each match as a compact dict:
 positions quantised to ``QUANTUM_M`` and delta-coded, headings in centiradians, one list per actor. The report
 embeds that dict as gzip + base64 and decodes it in the browser only when the match is opened (``REPLAY_JS``);
-``animation`` decodes the very same dict with ``decode`` and draws it with matplotlib. ``LAYOUT`` and ``STYLE``
-(panels, colours, what is faint) are read by both renderers, so the two pictures agree.
+``animation`` decodes the very same dict with ``decode`` and draws it with matplotlib. ``LAYOUT``, ``STYLE``,
+``KEY``, ``SERIES`` and ``PANELS`` (parts, colours, the key, units) are read by both renderers, and the scene
+carries what both show (titles, the view's size, the tested headway and its range, the bridged frames, the
+panels' y-ranges), so the two pictures agree. docs/replay.md says how to read them.
 """
 
 from __future__ import annotations
@@ -21,36 +23,50 @@ import numpy as np
 import polars as pl
 import shapely
 
+from logiq_sql import units
 from logiq_sql.db import connect
-from logiq_sql.errors import InputError
+from logiq_sql.errors import InputError, ScenarioError, arg
 from logiq_sql.plan import ALL_KINDS_CSV, DEFAULT_MIN_CLOSING_SPEED_MPS
 from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
+from logiq_sql.scenario import load_scenario
 from logiq_sql.sql import bind, query_text
 
 MARGIN_S = 1.0  # shown before and after the match
 OTHERS_RANGE_M = 60.0  # other road users within this distance of the ego are drawn (faint)
 QUANTUM_M = 0.1  # positions and box sizes are stored in decimetres
-VIEW_MIN_M, VIEW_MAX_M = 18.0, 60.0  # half-width of the view that follows the ego
+VIEW_MIN_M = 18.0  # least half-width of the view
+VIEW_MARGIN_M = 5.0  # room around the ego's and the actor's boxes at the tightest frame of the match
 ANY_RANGE_M = 1e9  # the pairs are chosen already: relations.sql must not drop any by distance
 BATCH = 400  # matches read per query: bounds memory for files with thousands of matches
+MPH_PER_MPS = 1 / units.factor("mph")  # speeds are shown in mph, the unit of the spec's speed KPIs
+CAP_S = 10.0  # the headway and TTC axis ends here; larger values are drawn on the top edge (tick label ">=10")
 
-# the values plotted under the map: (column, label, scale of the stored integers)
-SERIES = (("lon_gap_m", "gap (m)", 0.1), ("time_headway_s", "headway (s)", 0.1), ("ttc_s", "TTC (s)", 0.1),
-          ("ego_speed_mps", "ego speed (m/s)", 0.1), ("actor_speed_mps", "actor speed (m/s)", 0.1))
-# chart panels: title, the series sharing it, the top of its axis at most (a headway of a crawling car runs to
-# hundreds of seconds; values above are drawn at the top edge)
-PANELS = (("gap (m)", ("lon_gap_m",), None), ("headway and TTC (s)", ("time_headway_s", "ttc_s"), 10.0),
-          ("speed (m/s)", ("ego_speed_mps", "actor_speed_mps"), None))
-SERIES_COLOURS = {"lon_gap_m": "#2c7fb8", "time_headway_s": "#7fcdbb", "ttc_s": "#d95f0e",
-                  "ego_speed_mps": EGO_COLOUR, "actor_speed_mps": ACTOR_COLOUR}
+# the values plotted beside the map: (column, label, unit, scale of the stored integers). headway_s is the headway
+# the scenario's phases test (_headway_tests), so its frames outside the tested range are bridged ones
+SERIES = (("lon_gap_m", "gap", "m", 0.1), ("headway_s", "headway", "s", 0.1), ("ttc_s", "TTC", "s", 0.1),
+          ("ego_speed_mph", "ego", "mph", 0.1), ("actor_speed_mph", "actor", "mph", 0.1))
+# chart panels: axis label with unit, the series sharing it, the top of its axis at most
+PANELS = (("gap (m)", ("lon_gap_m",), None), ("headway, TTC (s)", ("headway_s", "ttc_s"), CAP_S),
+          ("speed (mph)", ("ego_speed_mph", "actor_speed_mph"), None))
+# ego blue, actor red, other road users grey, junctions tan; the measures and the phases avoid those hues
+SERIES_COLOURS = {"lon_gap_m": "#4d4d4d", "headway_s": "#7b3294", "ttc_s": "#b35806",
+                  "ego_speed_mph": EGO_COLOUR, "actor_speed_mph": ACTOR_COLOUR}
 STYLE = {
     "ego": EGO_COLOUR, "actor": ACTOR_COLOUR, "other": "#6b6b6b", "other_alpha": 0.3,
     "lane_fill": "#e6e6e6", "lane_edge": "#a0a0a0", "junction_fill": "#f5c16c", "junction_edge": "#b07d1a",
     "junction_alpha": 0.4, "background": "#fbfbf8", "phases": list(PHASE_COLOURS), "series": SERIES_COLOURS,
+    "context": "#d9d9d9", "bridged": "#000000", "band": "#e7d4e8",
 }
-# map 4:3 on the left, phase timeline under it, one chart per panel on the right (fractions of the figure)
-LAYOUT = {"width": 980, "height": 520, "map": [0.0, 0.0, 0.62, 0.86], "timeline": [0.0, 0.88, 0.62, 0.12],
-          "charts": [0.65, 0.0, 0.35, 1.0]}
+KEY = (("ego (SUT)", "ego"), ("actor", "actor"), ("other road users", "other"), ("lane", "lane_fill"),
+       ("junction", "junction_fill"))
+# fractions of the figure (x, y from the top, w, h): the map with its axes, its key, the phase timeline, the
+# phases' key, and the charts on the right; the title is above the map (in the GIF; the report puts it over the
+# canvas)
+LAYOUT = {"width": 1000, "height": 600, "map": [0.06, 0.09, 0.55, 0.61], "key": [0.0, 0.755, 0.64, 0.04],
+          "timeline": [0.06, 0.81, 0.55, 0.06], "phase_key": [0.0, 0.94, 0.64, 0.05],
+          "charts": [0.70, 0.09, 0.29, 0.79]}
+# the timeline's and the charts' time axis label
+TIME_LABEL = "t (s of the drive)"
 
 # relations.sql reads these tables; the replay gives it only the rows of the replayed pairs and no lane relations
 # (same_lane and adjacent_side are not shown), so gap, headway and TTC are those matching computed
@@ -120,28 +136,80 @@ def _frames(con: duckdb.DuckDBPyConnection, ids: list[str]) -> tuple[pl.DataFram
     return windows, frames, others
 
 
+def _headway_tests(con: duckdb.DuckDBPyConnection, windows: pl.DataFrame) -> pl.DataFrame:
+    """Per (scenario, params_hash) of the replayed matches: the headway column its phase tests (the value of the
+    scenario's headway_in_range conditions; the built-in scenarios test one column), the indexes of the phases that
+    test it and the range bound in that run."""
+    bound = dict(con.execute("select params_hash, any_value(params_json) from match_runs where params_hash in "
+                             "(select params_hash from replay_windows) group by 1").fetchall())
+    rows = []
+    for name, params_hash in windows.select("scenario", "params_hash").unique().iter_rows():
+        try:
+            scenario = load_scenario(name)
+        except ScenarioError:  # a scenario of another --scenario-path: its plain time headway, no range
+            continue
+        tested = [(k, c.value) for k, p in enumerate(scenario.phases, 1) for c in p.conditions
+                  if c.name == "headway_in_range"]
+        if tested:
+            params = json.loads(bound[params_hash]) if params_hash in bound else scenario.bindings()
+            rows.append((name, params_hash, tested[0][1], [k for k, _ in tested],
+                         params.get("min_distance_from_sut_in_time_units_s"),
+                         params.get("max_distance_from_sut_in_time_units_s")))
+    return pl.DataFrame(rows, orient="row", schema={"scenario": pl.String, "params_hash": pl.String,
+                                                    "hw_column": pl.String, "hw_phases": pl.List(pl.Int64),
+                                                    "hw_lo": pl.Float64, "hw_hi": pl.Float64})
+
+
 def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, phases: pl.DataFrame,
-            pet: dict[str, float | None]) -> list[dict]:
+            pet: dict[str, float | None], headway: pl.DataFrame) -> list[dict]:
     """One compact scene dict per match (vectorised per column; the loop is over matches)."""
-    frames = frames.with_columns(pl.int_range(pl.len()).over("match_id").alias("i"),
-                                 pl.col("ego_x_m").first().over("match_id").round().alias("ox"),
-                                 pl.col("ego_y_m").first().over("match_id").round().alias("oy"))
+    tested = (windows.select("match_id", "scenario", "params_hash", "start_frame", "end_frame")
+              .join(headway, on=["scenario", "params_hash"], how="left"))
+    # the frames inside a phase that tests the headway
+    spans = (tested.select("match_id", pl.col("hw_phases").alias("phase_index")).explode("phase_index")
+             .join(phases.select("match_id", "phase_index", "start_frame", "end_frame"), on=["match_id", "phase_index"]))
+    in_tested = (frames.select("match_id", "frame").join(spans, on="match_id")
+                 .filter(pl.col("frame").is_between("start_frame", "end_frame"))
+                 .select("match_id", "frame").unique().with_columns(pl.lit(True).alias("in_tested")))
+    frames = (frames.join(tested.drop("hw_phases"), on="match_id", how="left")
+              .join(in_tested, on=["match_id", "frame"], how="left")).with_columns(
+        pl.int_range(pl.len()).over("match_id").alias("i"),
+        pl.col("ego_x_m").first().over("match_id").round().alias("ox"),
+        pl.col("ego_y_m").first().over("match_id").round().alias("oy"),
+        pl.when(pl.col("hw_column") == "follow_headway_s").then("follow_headway_s")
+        .otherwise("time_headway_s").alias("headway_s"),
+        (pl.col("ego_speed_mps") * MPH_PER_MPS).alias("ego_speed_mph"),
+        (pl.col("actor_speed_mps") * MPH_PER_MPS).alias("actor_speed_mph"))
+    inside = pl.col("frame").is_between("start_frame", "end_frame")
+    # frames of the match at which its phase cannot have held, bridged by max_gap (docs/semantics.md): the actor
+    # is not tracked, or, in a phase that tests the headway, the headway is undefined or out of its range
+    out_of_range = (pl.col("in_tested").fill_null(False)
+                    & ~pl.col("headway_s").is_between("hw_lo", "hw_hi").fill_null(False))
+    frames = frames.with_columns((inside & (pl.col("actor_x_m").is_null() | out_of_range.fill_null(False)))
+                                 .alias("bridged"))
     origin = frames.group_by("match_id").agg(pl.col("ox", "oy").first(), pl.col("t_s").first().alias("t0"))
-    # the view: wide enough for the actor most of the time, never a thin strip
-    dist = ((pl.col("actor_x_m") - pl.col("ego_x_m")) ** 2 + (pl.col("actor_y_m") - pl.col("ego_y_m")) ** 2).sqrt()
-    view = frames.group_by("match_id").agg((dist.quantile(0.8) + 10).fill_null(VIEW_MIN_M)
-                                           .clip(VIEW_MIN_M, VIEW_MAX_M).alias("view_m"))
+    # the view: centred between the ego and the actor (on the ego while the actor is untracked), wide enough for
+    # both boxes at every frame of the match, with the map's aspect (equal scale on both axes)
+    reach = pl.max_horizontal((pl.col("ego_length_m") ** 2 + pl.col("ego_width_m") ** 2).sqrt(),
+                              (pl.col("actor_length_m") ** 2 + pl.col("actor_width_m") ** 2).sqrt()) / 2
+    half_x = ((pl.col("actor_x_m") - pl.col("ego_x_m")).abs() / 2).fill_null(0) + reach + VIEW_MARGIN_M
+    half_y = ((pl.col("actor_y_m") - pl.col("ego_y_m")).abs() / 2).fill_null(0) + reach + VIEW_MARGIN_M
+    aspect = (LAYOUT["map"][2] * LAYOUT["width"]) / (LAYOUT["map"][3] * LAYOUT["height"])
+    view = frames.filter(inside).group_by("match_id").agg(
+        pl.max_horizontal(half_x.max(), half_y.max() * aspect, pl.lit(VIEW_MIN_M)).alias("view_m"))
+    bridged = frames.filter("bridged").group_by("match_id").agg(pl.col("i").alias("b"))
     q = QUANTUM_M
     coded = frames.with_columns(
         _q(pl.col("ego_x_m") - pl.col("ox"), q).alias("ex"), _q(pl.col("ego_y_m") - pl.col("oy"), q).alias("ey"),
         _q(pl.col("actor_x_m") - pl.col("ox"), q).alias("ax"), _q(pl.col("actor_y_m") - pl.col("oy"), q).alias("ay"),
         _q(pl.col("ego_heading_rad"), 0.01).alias("eh"), _q(pl.col("actor_heading_rad"), 0.01).alias("ah"),
-        *[_q(pl.col(c), s).alias(c) for c, _, s in SERIES],
+        *[_q(pl.col(c), k).alias(c) for c, _, _, k in SERIES],
     ).with_columns(*[_delta(c) for c in ("frame", "ex", "ey", "ax", "ay", "eh", "ah")])
     per_match = coded.group_by("match_id", maintain_order=True).agg(
-        "frame", "ex", "ey", "eh", "ax", "ay", "ah", *[c for c, _, _ in SERIES],
+        "frame", "ex", "ey", "eh", "ax", "ay", "ah", *[c for c, _, _, _ in SERIES],
         _q(pl.col("ego_length_m").median(), q).alias("el"), _q(pl.col("ego_width_m").median(), q).alias("ew"),
-        _q(pl.col("actor_length_m").median(), q).alias("al"), _q(pl.col("actor_width_m").median(), q).alias("aw"))
+        _q(pl.col("actor_length_m").median(), q).alias("al"), _q(pl.col("actor_width_m").median(), q).alias("aw"),
+        pl.col("hw_column", "hw_lo", "hw_hi").first())
     index = frames.select("match_id", "frame", "i", "ox", "oy")
     other = (others.join(index, on=["match_id", "frame"]).sort("match_id", "actor_id", "frame")
              .with_columns(_q(pl.col("x_m") - pl.col("ox"), q).alias("x"),
@@ -161,7 +229,8 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
                   .agg(pl.concat_list(pl.col("phase_index").cast(pl.Int64).cast(pl.String), "phase",
                                       pl.col("i").cast(pl.String), pl.col("j").cast(pl.String)).alias("p")))
     table = (windows.join(per_match, on="match_id").join(origin, on="match_id").join(view, on="match_id")
-             .join(other, on="match_id", how="left").join(phase_rows, on="match_id", how="left"))
+             .join(other, on="match_id", how="left").join(phase_rows, on="match_id", how="left")
+             .join(bridged, on="match_id", how="left"))
     out = []
     for r in table.iter_rows(named=True):  # one dict per match, from lists already built
         out.append({
@@ -174,7 +243,10 @@ def _encode(windows: pl.DataFrame, frames: pl.DataFrame, others: pl.DataFrame, p
             "e": {"x": r["ex"], "y": r["ey"], "h": r["eh"], "l": r["el"], "w": r["ew"]},
             "a": {"x": r["ax"], "y": r["ay"], "h": r["ah"], "l": r["al"], "w": r["aw"]},
             "o": r["o"] or [],
-            "s": {c: r[c] for c, _, _ in SERIES},
+            "s": {c: r[c] for c, _, _, _ in SERIES},
+            # the headway shown: the column the scenario's phase tests and its range (None: time_headway_s)
+            "hw": {"column": r["hw_column"] or "time_headway_s", "lo": r["hw_lo"], "hi": r["hw_hi"]},
+            "b": r["b"] or [],
             "p": [[int(i), name, None if a is None else int(a), None if b is None else int(b)]
                   for i, name, a, b in (r["p"] or [])],
         })
@@ -203,7 +275,7 @@ def _maps(con: duckdb.DuckDBPyConnection, encoded: list[dict]) -> dict[str, dict
         if s["map"] is None:
             continue
         x, y = _undelta(s["e"]["x"]) * QUANTUM_M + s["origin"][0], _undelta(s["e"]["y"]) * QUANTUM_M + s["origin"][1]
-        r = s["view_m"] * 1.5
+        r = s["view_m"] * 2  # the view is centred within view_m of the ego (between it and the actor)
         boxes.setdefault(s["map"], []).append(shapely.box(np.nanmin(x) - r, np.nanmin(y) - r, np.nanmax(x) + r,
                                                           np.nanmax(y) + r))
     out = {}
@@ -227,14 +299,35 @@ def scenes(con: duckdb.DuckDBPyConnection, match_ids: Iterable[str]) -> tuple[li
     for start in range(0, len(ids), BATCH):
         batch = ids[start:start + BATCH]
         windows, frames, others = _frames(con, batch)
+        headway = _headway_tests(con, windows)
         phases = con.sql("select match_id, phase_index, phase, start_frame, end_frame from match_phases "
                          "where match_id in (select match_id from replay_ids)").pl()
         pet = dict(con.execute("select match_id, pet_between_sut_and_npc_s from kpis where match_id in "
                                "(select match_id from replay_ids)").fetchall()) if pet_column else {}
-        encoded += _encode(windows, frames, others, phases, pet)
+        encoded += _encode(windows, frames, others, phases, pet, headway)
     order = {m: i for i, m in enumerate(ids)}
     encoded.sort(key=lambda s: order[s["id"]])
+    _shared_ranges(encoded)
     return encoded, _maps(con, encoded)
+
+
+def _shared_ranges(encoded: list[dict]) -> None:
+    """Give every scene the y-range of each panel over all the replayed matches of its scenario, so that the
+    matches of one scenario are drawn to one scale (the headway and TTC panel ends at its cap)."""
+    ranges: dict[str, list[list[float]]] = {}
+    for s in encoded:
+        mine = ranges.setdefault(s["scenario"], [[0.0, 1.0] for _ in PANELS])
+        for k, (_, columns, cap) in enumerate(PANELS):
+            values = [v for c in columns for v in s["s"][c] if v is not None]
+            if values:  # stored integers: the range in the panel's unit, rounded outwards
+                scale = next(x for c, _, _, x in SERIES if c == columns[0])
+                mine[k][0] = min(mine[k][0], float(np.floor(min(values) * scale)))
+                mine[k][1] = max(mine[k][1], float(np.ceil(max(values) * scale)))
+            if cap is not None:
+                mine[k] = [max(mine[k][0], 0.0), cap]
+    for s in encoded:
+        s["y"] = ranges[s["scenario"]]
+        s["titles"] = list(titles(s))
 
 
 def scene(db: str | Path | duckdb.DuckDBPyConnection, match_id: str) -> dict:
@@ -255,7 +348,7 @@ def scene(db: str | Path | duckdb.DuckDBPyConnection, match_id: str) -> dict:
 
 def _open(db: str | Path) -> duckdb.DuckDBPyConnection:
     if not Path(db).is_file():
-        raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
+        raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
     return connect(db, read_only=True)
 
 
@@ -284,7 +377,7 @@ def decode(s: dict) -> dict:
         idx = _undelta(o["i"]).astype(int)
         x[idx], y[idx], h[idx] = _undelta(o["x"]) * q + ox, _undelta(o["y"]) * q + oy, _undelta(o["h"]) * 0.01
         others.append({"x": x, "y": y, "h": h, "l": o["l"] * q, "w": o["w"] * q, "kind": o["k"]})
-    scale = {c: k for c, _, k in SERIES}
+    scale = {c: k for c, _, _, k in SERIES}
     series = {c: np.array(vals, dtype=float) * scale[c] for c, vals in s["s"].items()}
     lanes, junctions = [], []
     if s.get("lanes"):
@@ -294,7 +387,8 @@ def decode(s: dict) -> dict:
                 xy = np.cumsum(np.asarray(ring, dtype=float).reshape(-1, 2), axis=0) * m["q"] + m["origin"]
                 into.append(xy)
     return {"t_s": s["t0"] + (frames - frames[0]) * s["dt"], "ego": actor(s["e"]), "actor": actor(s["a"]),
-            "others": others, "series": series, "phases": s["p"], "lanes": lanes, "junctions": junctions}
+            "others": others, "series": series, "phases": s["p"], "lanes": lanes, "junctions": junctions,
+            "bridged": np.asarray(s["b"], dtype=int)}
 
 
 def box_corners(x: float, y: float, h: float, length: float, width: float) -> np.ndarray:
@@ -306,11 +400,10 @@ def box_corners(x: float, y: float, h: float, length: float, width: float) -> np
 
 # ---- matplotlib (notebooks, GIF and MP4): the same scene, layout and colours as REPLAY_JS ----
 
-def _axes_rect(part: list[float], pad: tuple[float, float, float, float] = (0, 0, 0, 0)) -> list[float]:
-    """A LAYOUT part (x, y from the top, w, h; fractions) as matplotlib's (left, bottom, w, h), padded inwards."""
+def _axes_rect(part: list[float]) -> list[float]:
+    """A LAYOUT part (x, y from the top, w, h; fractions) as matplotlib's (left, bottom, w, h)."""
     x, y, w, h = part
-    left, top, right, bottom = pad
-    return [x + left, 1 - y - h + bottom, w - left - right, h - top - bottom]
+    return [x, 1 - y - h, w, h]
 
 
 MAX_FRAMES = 150  # a replay longer than this skips frames evenly (GIF size, notebook size)
@@ -318,6 +411,59 @@ MAX_FRAMES = 150  # a replay longer than this skips frames evenly (GIF size, not
 
 def _step(n: int, max_frames: int) -> int:
     return max(1, -(-n // max_frames))
+
+
+def titles(s: dict) -> tuple[str, str]:
+    """The replay's two title lines (the report's dialog shows the same): what and when, then who."""
+    ego = "recorded ego" if s["ego"] == "ego" else f"ego {s['ego']}"
+    pet = "" if s.get("pet_s") is None else f", PET {s['pet_s']:.2f} s"
+    return (f"{s['scenario']}: match {s['start_s']:.1f} to {s['end_s']:.1f} s{pet}",
+            f"drive {s['drive']}, {ego} (blue), actor {s['actor']} (red)")
+
+
+def view_centres(d: dict) -> np.ndarray:
+    """Per frame, the centre of the view: midway between the ego and the actor, on the ego while the actor is
+    untracked (replay.js's viewCentre is the same rule)."""
+    ego = np.column_stack([d["ego"]["x"], d["ego"]["y"]])
+    actor = np.column_stack([d["actor"]["x"], d["actor"]["y"]])
+    mid = (ego + actor) / 2
+    return np.where(np.isnan(mid), ego, mid)
+
+
+def scale_bar_m(width_m: float) -> float:
+    """The scale bar's length: the least round length of at least a sixth of the view's width (replay.js:
+    scaleBar)."""
+    return float(next((v for v in (5, 10, 20, 50, 100, 200, 500) if v >= width_m / 6), 1000))
+
+
+def actor_note(t_s: np.ndarray, x: np.ndarray, i: int) -> str | None:
+    """Why the actor has no value at frame i: its track has not begun, has ended, or has a hole (bridged)."""
+    if not np.isnan(x[i]):
+        return None
+    seen = np.flatnonzero(~np.isnan(x))
+    if not seen.size:
+        return "actor not tracked"
+    if i < seen[0]:
+        return f"actor track starts at t={t_s[seen[0]]:.1f} s"
+    if i > seen[-1]:
+        return f"actor track ends at t={t_s[seen[-1]]:.1f} s"
+    return "actor not tracked here"
+
+
+def arrow_points(x: float, y: float, h: float, length: float, width: float) -> np.ndarray:
+    """The heading arrow drawn on a box: a shaft from the centre with a head at the front edge (7 points)."""
+    head, shaft = min(width * 0.8, length * 0.45), width * 0.12
+    tip = length / 2
+    local = np.array([[-length * 0.25, -shaft], [tip - head, -shaft], [tip - head, -head / 2], [tip, 0],
+                      [tip - head, head / 2], [tip - head, shaft], [-length * 0.25, shaft]])
+    c, s = np.cos(h), np.sin(h)
+    return np.column_stack([x + local[:, 0] * c - local[:, 1] * s, y + local[:, 0] * s + local[:, 1] * c])
+
+
+def value_text(name: str, unit: str, value: float, cap: float | None) -> str:
+    if np.isnan(value):
+        return f"{name} undefined"
+    return f"{name} {value:.1f} {unit}" + (f" (axis ends at {cap:.0f})" if cap is not None and value > cap else "")
 
 
 def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str | None = None, step: int | None = None,
@@ -330,19 +476,28 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
     from matplotlib.animation import FuncAnimation
     from matplotlib.collections import PolyCollection
     from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     s = db if isinstance(db, dict) else scene(db, match_id)
     d = decode(s)
-    n = len(d["t_s"])
+    t = d["t_s"]
+    n = len(t)
     step = step or _step(n, max_frames)
+    t_lo, t_hi = t[0], t[-1] + s["dt"]
     fig = Figure(figsize=(LAYOUT["width"] / 100, LAYOUT["height"] / 100), dpi=100, facecolor="white")
-    fig.suptitle(f"{s['scenario']}: drive {s['drive']}, ego {s['ego']} (blue), actor {s['actor']} (red), "
-                 f"match {s['start_s']:.1f} to {s['end_s']:.1f} s", fontsize=8, x=0.01, ha="left", y=0.995)
-    ax = fig.add_axes(_axes_rect(LAYOUT["map"], (0.04, 0.05, 0.0, 0.03)))
+    first, second = titles(s)
+    fig.text(0.01, 0.99, first, fontsize=8, va="top", weight="bold")
+    fig.text(0.01, 0.955, second, fontsize=7, va="top")
+
+    # the map: map coordinates in metres, equal scale, a scale bar, the view between the ego and the actor
+    ax = fig.add_axes(_axes_rect(LAYOUT["map"]))
     ax.set_facecolor(STYLE["background"])
-    ax.set_aspect("equal", adjustable="box")
+    ax.set_aspect("equal", adjustable="datalim")
     ax.tick_params(labelsize=6)
+    ax.set_xlabel("x (m)", fontsize=7, labelpad=1)
+    ax.set_ylabel("y (m)", fontsize=7, labelpad=1)
     ax.add_collection(PolyCollection(d["lanes"], facecolor=STYLE["lane_fill"], edgecolor=STYLE["lane_edge"],
                                      linewidth=0.6, zorder=1))
     ax.add_collection(PolyCollection(d["junctions"], facecolor=STYLE["junction_fill"],
@@ -352,49 +507,96 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
     trails = {k: ax.plot([], [], color=STYLE[k], alpha=0.5, linewidth=1.5, zorder=4)[0] for k in ("ego", "actor")}
     boxes = {k: ax.add_patch(Polygon(np.zeros((4, 2)), closed=True, facecolor=STYLE[k], edgecolor="black",
                                      zorder=5)) for k in ("ego", "actor")}
-    noses = {k: ax.plot([], [], color="white", linewidth=1.5, zorder=6)[0] for k in ("ego", "actor")}
+    arrows = {k: ax.add_patch(Polygon(np.zeros((7, 2)), closed=True, facecolor="white", edgecolor="none",
+                                      zorder=6)) for k in ("ego", "actor")}
     half_w = s["view_m"]
-    map_w, map_h = LAYOUT["map"][2] * LAYOUT["width"], LAYOUT["map"][3] * LAYOUT["height"]
-    half_h = half_w * map_h / map_w
+    half_h = half_w * (LAYOUT["map"][3] * LAYOUT["height"]) / (LAYOUT["map"][2] * LAYOUT["width"])
+    bar = scale_bar_m(half_w * 2)
+    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:.0f} m", "lower left", pad=0.3, frameon=True,
+                                  size_vertical=half_h / 60, fontproperties={"size": 6}))
+    centres = view_centres(d)
+    key = [Patch(facecolor=STYLE[c], edgecolor="black", label=n) for n, c in KEY]
+    key.append(Line2D([], [], color="black", marker=">", linestyle="-", markersize=4, label="heading"))
+    x, y, w, h = LAYOUT["key"]
+    fig.legend(handles=key, loc="center left", bbox_to_anchor=(x, 1 - y - h / 2), ncols=len(key), fontsize=6.5,
+               frameon=False, handlelength=1.2, columnspacing=1.0)
 
-    tl = fig.add_axes(_axes_rect(LAYOUT["timeline"], (0.04, 0.02, 0.0, 0.04)))
-    tl.set_xlim(0, max(n - 1, 1))
+    # the phases over drive time, the context before and after the match shaded
+    tl = fig.add_axes(_axes_rect(LAYOUT["timeline"]))
+    tl.set_xlim(t_lo, t_hi)
+    tl.set_ylim(0, 1)
     tl.set_yticks([])
-    tl.tick_params(labelsize=6)
+    tl.tick_params(labelsize=6, pad=1)
+    tl.set_xlabel(TIME_LABEL, fontsize=7, labelpad=1)
+    phase_keys = []
     for index, name, a, b in d["phases"]:
         a, b = (0 if a is None else a), (n - 1 if b is None else b)
-        tl.broken_barh([(a, max(b - a, 0.5))], (0, 1), color=STYLE["phases"][(index - 1) % len(STYLE["phases"])])
-        tl.text(a + 0.5, 0.5, f"{index}. {name}", color="white", fontsize=6, va="center", clip_on=True)
-    cursors = [tl.axvline(0, color="black", linewidth=2)]
+        colour = STYLE["phases"][(index - 1) % len(STYLE["phases"])]
+        tl.broken_barh([(t[a], t[b] - t[a] + s["dt"])], (0.15, 0.7), color=colour)
+        phase_keys.append(Patch(facecolor=colour, label=f"{index}. {name}"))
+    charts = []
+    rows = len(PANELS)
+    gap = 0.045  # between the panels, for the value line above each
+    x, y, w, h = LAYOUT["charts"]
+    for k in range(rows):
+        part = [x, y + k * (h + gap) / rows, w, (h + gap) / rows - gap]
+        charts.append(fig.add_axes(_axes_rect(part)))
+    for a in [tl, *charts]:
+        for lo, hi in ((t_lo, s["start_s"]), (s["end_s"] + s["dt"], t_hi)):
+            if hi > lo:
+                a.axvspan(lo, hi, color=STYLE["context"], alpha=0.6, linewidth=0, zorder=0)
+    bridged = d["bridged"]
+    if bridged.size:
+        tl.plot(t[bridged] + s["dt"] / 2, np.full(bridged.size, 0.5), "|", color=STYLE["bridged"], markersize=7)
+    phase_keys.append(Patch(facecolor=STYLE["context"], label=f"context ({MARGIN_S:.0f} s either side)"))
+    if bridged.size:
+        phase_keys.append(Line2D([], [], color=STYLE["bridged"], marker="|", linestyle="none", label="bridged frame"))
+    if s["hw"]["lo"] is not None:
+        phase_keys.append(Patch(facecolor=STYLE["band"], label="headway range tested"))
+    x, y, w, h = LAYOUT["phase_key"]
+    # one row while the names fit across the figure (about 190 characters at this size), else two
+    chars = sum(len(p.get_label()) + 6 for p in phase_keys)
+    fig.legend(handles=phase_keys, loc="center left", bbox_to_anchor=(x, 1 - y - h / 2),
+               ncols=len(phase_keys) if chars <= 190 else -(-len(phase_keys) // 2),
+               fontsize=6.5, frameon=False, handlelength=1.2, columnspacing=1.0)
+    cursors = [tl.axvline(t[0], color="black", linewidth=2)]
 
     values = []
-    label = {c: name for c, name, _ in SERIES}
-    rows = len(PANELS)
-    for k, (title, columns, cap) in enumerate(PANELS):
-        x, y, w, h = LAYOUT["charts"]
-        part = [x, y + k * h / rows, w, h / rows]
-        cax = fig.add_axes(_axes_rect(part, (0.02, 0.05, 0.01, 0.03)))
-        cax.tick_params(labelsize=6)
-        cax.set_xlim(0, max(n - 1, 1))
-        if "TTC" in title and s.get("pet_s") is not None:
-            title += f", PET {s['pet_s']:.2f} s"
-        cax.set_title(title, fontsize=7, loc="left")
+    units_of = {c: (name, unit) for c, name, unit, _ in SERIES}
+    hw_name = "follow headway" if s["hw"]["column"] == "follow_headway_s" else "headway"
+    for k, (cax, (label, columns, cap)) in enumerate(zip(charts, PANELS, strict=True)):
+        cax.tick_params(labelsize=6, pad=1)
+        cax.set_xlim(t_lo, t_hi)
+        lo, hi = s["y"][k]
+        cax.set_ylim(lo, hi * (1 if cap else 1.05))
+        cax.set_ylabel(label, fontsize=7, labelpad=1)
+        if cap:
+            ticks = np.linspace(0, cap, 5)
+            cax.set_yticks(ticks, [f"{v:g}" for v in ticks[:-1]] + [f"\u2265{cap:g}"])
+        if k < rows - 1:
+            cax.tick_params(labelbottom=False)
+        else:
+            cax.set_xlabel(TIME_LABEL, fontsize=7, labelpad=1)
+        if "headway_s" in columns and s["hw"]["lo"] is not None:
+            cax.axhspan(s["hw"]["lo"], min(s["hw"]["hi"], cap), color=STYLE["band"], linewidth=0, zorder=0.5)
         for j, c in enumerate(columns):
             series = d["series"][c]
-            cax.plot(np.arange(n), np.minimum(series, cap) if cap else series, color=STYLE["series"][c],
-                     linewidth=1.2)
-            values.append((cax.text(0.02 + j * 0.5, 0.85, "", transform=cax.transAxes, fontsize=6,
-                                    color=STYLE["series"][c]), series, label[c]))
-        shown = np.concatenate([d["series"][c] for c in columns])
-        shown = shown[np.isfinite(shown)]
-        top = max(1.0, float(shown.max()) if shown.size else 1.0)
-        cax.set_ylim(min(0.0, float(shown.min()) if shown.size else 0.0), min(top, cap) if cap else top * 1.05)
-        cursors.append(cax.axvline(0, color="black", linewidth=1))
+            cax.plot(t, np.minimum(series, cap) if cap else series, color=STYLE["series"][c], linewidth=1.2)
+            if c == "headway_s" and bridged.size:
+                cax.plot(t[bridged], np.minimum(np.nan_to_num(series[bridged], nan=0.0), cap), "x",
+                         color=STYLE["bridged"], markersize=3)
+            name, unit = units_of[c]
+            name = hw_name if c == "headway_s" else name
+            # the value line sits above the panel, one series at each end, never under a curve
+            text = cax.text(0.0 if j == 0 else 1.0, 1.02, "", transform=cax.transAxes, fontsize=6.5,
+                            ha="left" if j == 0 else "right", va="bottom", color=STYLE["series"][c])
+            values.append((text, series, name, unit, cap, c != "ego_speed_mph", j))
+        cursors.append(cax.axvline(t[0], color="black", linewidth=1))
 
     def draw(i: int):
-        ex, ey = d["ego"]["x"][i], d["ego"]["y"][i]
-        ax.set_xlim(ex - half_w, ex + half_w)
-        ax.set_ylim(ey - half_h, ey + half_h)
+        cx, cy = centres[i]
+        ax.set_xlim(cx - half_w, cx + half_w)
+        ax.set_ylim(cy - half_h, cy + half_h)
         polys = [box_corners(o["x"][i], o["y"][i], o["h"][i], o["l"], o["w"]) for o in d["others"]
                  if not np.isnan(o["x"][i])]
         others.set_verts(polys)
@@ -403,19 +605,24 @@ def animation(db: str | Path | duckdb.DuckDBPyConnection | dict, match_id: str |
             trails[k].set_data(a["x"][:i + 1], a["y"][:i + 1])
             visible = not np.isnan(a["x"][i])
             boxes[k].set_visible(visible)
-            noses[k].set_visible(visible)
+            arrows[k].set_visible(visible)
             if visible:
                 boxes[k].set_xy(box_corners(a["x"][i], a["y"][i], a["h"][i], a["l"], a["w"]))
-                noses[k].set_data([a["x"][i], a["x"][i] + a["l"] / 2 * np.cos(a["h"][i])],
-                                  [a["y"][i], a["y"][i] + a["l"] / 2 * np.sin(a["h"][i])])
+                arrows[k].set_xy(arrow_points(a["x"][i], a["y"][i], a["h"][i], a["l"], a["w"]))
         for cursor in cursors:
-            cursor.set_xdata([i, i])
-        for text, series, name in values:
-            text.set_text(f"{name} {'n/a' if np.isnan(series[i]) else f'{series[i]:.1f}'}")
+            cursor.set_xdata([t[i], t[i]])
+        note = actor_note(t, d["actor"]["x"], i)
+        for text, series, name, unit, cap, needs_actor, j in values:
+            if needs_actor and note:  # said once per panel, not as a bare "n/a" under every value
+                text.set_text(note if j == 0 else "")
+            else:
+                text.set_text(value_text(name, unit, series[i], cap))
         return []
 
     draw(0)
-    return FuncAnimation(fig, draw, frames=range(0, n, step), interval=1000 * s["dt"] * step, blit=False)
+    anim = FuncAnimation(fig, draw, frames=range(0, n, step), interval=1000 * s["dt"] * step, blit=False)
+    anim.parts = {"figure": fig, "map": ax, "boxes": boxes, "draw": draw}  # for tests: what is drawn where
+    return anim
 
 
 def save(db: str | Path, match_id: str, out: str | Path, step: int | None = None) -> Path:
@@ -423,7 +630,7 @@ def save(db: str | Path, match_id: str, out: str | Path, step: int | None = None
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4"):
-        raise InputError(f"--out {out}: write a .gif or an .mp4 file.")
+        raise InputError(f"{arg('out', out)}: write a .gif or an .mp4 file.")
     s = scene(db, match_id)
     step = step or _step(len(s["f"]), MAX_FRAMES)
     anim = animation(s, step=step)

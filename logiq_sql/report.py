@@ -20,7 +20,8 @@ import polars as pl
 
 from logiq_sql import plots, replay
 from logiq_sql.db import open_for_read
-from logiq_sql.errors import InputError
+from logiq_sql.errors import InputError, ScenarioError, arg
+from logiq_sql.scenario import load_scenario
 
 MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s",
                  "params_hash")
@@ -40,12 +41,11 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 .filters { margin: .5em 0; display: flex; gap: 1em; align-items: center; }
 .status-rejected { color: #b00; } .status-matched { color: #060; }
 button[data-replay] { font-size: 11px; padding: 0 6px; cursor: pointer; }
-dialog#replay { padding: .5em 1em; border: 1px solid #888; border-radius: 6px; max-width: 1010px; }
+dialog#replay { padding: .5em 1em; border: 1px solid #888; border-radius: 6px; max-width: 1040px; }
 dialog#replay::backdrop { background: rgba(0, 0, 0, .35); }
 .replay-head, .replay-controls { display: flex; gap: .6em; align-items: center; margin: .3em 0; font-size: 12px; }
 .replay-head span { flex: 1; } #replay-slider { flex: 1; }
 .key { font-size: 11px; color: #555; }
-.key i { display: inline-block; width: 10px; height: 10px; margin: 0 3px 0 8px; vertical-align: middle; }
 """
 
 # filters the match table by scenario and by free text over every cell
@@ -101,12 +101,12 @@ def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | Non
 
 def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
-        raise InputError(f"--db {db}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
+        raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
     with open_for_read(db) as con:  # one connection: the tables and the replays are of one published state
         present = {r[0] for r in con.sql("select table_name from information_schema.tables").fetchall()}
         missing = [t for t in ("matches", "kpis", "coverage", "match_runs") if t not in present]
         if missing:
-            raise InputError(f"--db {db}: no match run recorded yet ({', '.join(missing)} missing): run "
+            raise InputError(f"{arg('db', db)}: no match run recorded yet ({', '.join(missing)} missing): run "
                              f"`logiq-sql match --db {db}` first, then the report.")
         data = {
             "drives": con.sql("select drive_id, source_format, status, matches, matches_per_scenario, rows_read, "
@@ -128,26 +128,35 @@ def _replays(matches: pl.DataFrame, scenes: list[dict], maps: dict) -> str:
     by_id = {s["id"]: s for s in scenes}
     map_keys = {m: k for k, m in enumerate(maps)}
     config = {"layout": replay.LAYOUT, "style": replay.STYLE, "series": replay.SERIES, "panels": replay.PANELS,
-              "maps": map_keys}
+              "key": replay.KEY, "margin_s": replay.MARGIN_S, "time_label": replay.TIME_LABEL, "maps": map_keys}
     tags = [f'<script type="application/json" id="replay-config">{_json(config)}</script>']
     tags += [f'<script type="application/x-gzip-base64" id="rm-{k}">{replay.pack(maps[m])}</script>'
              for m, k in map_keys.items()]
     tags += [f'<script type="application/x-gzip-base64" id="rp-{k}">{replay.pack(by_id[m])}</script>'
              for k, m in enumerate(matches["match_id"]) if m in by_id]
-    key = "".join(f'<i style="background:{c}"></i>{html.escape(n)}' for n, c in (
-        ("ego (SUT)", replay.STYLE["ego"]), ("actor", replay.STYLE["actor"]),
-        ("other road users", replay.STYLE["other"]), ("lanes", replay.STYLE["lane_fill"]),
-        ("junctions", replay.STYLE["junction_fill"])))
     dialog = (
         '<dialog id="replay"><div class="replay-head"><span id="replay-title"></span>'
         '<button id="replay-close">close</button></div>'
-        f'<div class="key">{key}; white line: heading; trails: path so far; the view follows the ego</div>'
+        '<div class="key">The view keeps the ego and the actor in frame over the whole match; trails: the path so '
+        'far; time in seconds of the drive; docs/replay.md explains every mark.</div>'
         f'<canvas id="replay-canvas" width="{replay.LAYOUT["width"]}" height="{replay.LAYOUT["height"]}"></canvas>'
         '<div class="replay-controls"><button id="replay-back">&#9664; step</button>'
         '<button id="replay-play">play</button><button id="replay-next">step &#9654;</button>'
         '<input id="replay-slider" type="range" min="0" max="0" value="0"><span id="replay-frame"></span></div>'
         "</dialog>")
     return dialog + "\n" + "\n".join(tags)
+
+
+def _units(name: str, what: str) -> dict[str, str]:
+    """The unit of each coverage item (``what="coverage"``, by item) or KPI column (``"kpis"``, by column) of a
+    scenario, from its file; empty for a scenario of another --scenario-path."""
+    try:
+        scenario = load_scenario(name)
+    except ScenarioError:
+        return {}
+    if what == "coverage":
+        return {c.name: c.unit for c in scenario.coverage}
+    return {column: unit for column, (unit, _, _) in scenario.metric_columns().items()}
 
 
 def _json(value: object) -> str:
@@ -171,14 +180,19 @@ def report(db: str | Path, out: str | Path) -> Path:
         + "</div>",
         "<h2>Coverage</h2><p>Hits per bucket over every match in the file; empty buckets are shaded red.</p>",
     ]
-    parts += [_svg(plots.coverage_grid(data["coverage"], s)) for s in scenarios
-              if not data["coverage"].filter(pl.col("scenario") == s).is_empty()]
+    per_scenario = matches.group_by("scenario").len()
+    counts = dict(per_scenario.iter_rows())
+    for s in scenarios:
+        if not counts.get(s):  # one line, not a grid of empty charts
+            parts.append(f"<p class=\"none\">{html.escape(s)}: no match in this file, so no coverage.</p>")
+        elif not data["coverage"].filter(pl.col("scenario") == s).is_empty():
+            parts.append(_svg(plots.coverage_grid(data["coverage"], s, units=_units(s, "coverage"))))
     parts.append("<h2>KPI distributions</h2>")
     for s in scenarios:
-        if plots.kpi_columns(data["kpis"], s):
-            parts.append(_svg(plots.kpi_grid(data["kpis"], s)))
+        if counts.get(s) and plots.kpi_columns(data["kpis"], s):
+            parts.append(_svg(plots.kpi_grid(data["kpis"], s, units=_units(s, "kpis"))))
         else:
-            parts.append(f"<p>{html.escape(s)}: no matches, no KPI values.</p>")
+            parts.append(f"<p class=\"none\">{html.escape(s)}: no match in this file, so no KPI values.</p>")
     options = "".join(f'<option value="{html.escape(s)}">{html.escape(s)}</option>' for s in scenarios)
     parts += [
         "<h2>Matches</h2>",

@@ -315,3 +315,22 @@ def test_connect_is_read_only_unless_asked(tmp_path):
         with pytest.raises(duckdb.Error, match="read-only"):
             con.execute("delete from drive_inputs")
 
+
+
+def test_report_replay_and_busy_errors_name_the_python_argument(tmp_path, capsys):
+    from logiq_sql import locking, replay, report
+
+    missing = tmp_path / "none.duckdb"
+    with pytest.raises(LogiqError, match=r"^db='.*none\.duckdb': no such file"):
+        report.report(missing, tmp_path / "r.html")
+    with pytest.raises(LogiqError, match=r"^out='.*\.png': write a \.gif or an \.mp4 file"):
+        replay.save(missing, "m", tmp_path / "x.png")
+    assert main(["report", "--db", str(missing), "--out", str(tmp_path / "r.html")]) == EXIT_BAD_INPUT
+    assert "logiq-sql: error: --db " in capsys.readouterr().err
+    db = tmp_path / "x.duckdb"
+    held = locking.acquire(db)
+    try:
+        with pytest.raises(locking.FileBusyError, match=r"Wait for it with wait_s=60 \(seconds\)"):
+            locking.acquire(db)
+    finally:
+        held.release()

@@ -1,6 +1,7 @@
-"""Ingest's checks over a whole batch (``ingestion.clean_batch``) and the Parquet reader's one cast per chunk
-(``readers.parquet._drives_at_once``) give exactly what checking and casting drive by drive gives: the same
-drives, rows, counts and messages, for a batch mixing good drives with every kind of bad one.
+"""Ingest's checks (``ingestion.clean_batch``, one set of rules over a batch of any size) and the Parquet reader's
+one cast per chunk (``readers.parquet._drives_at_once``): a batch gives exactly what each drive alone gives, and the
+reader what casting drive by drive gives: the same drives, rows, counts and messages, for a batch mixing good
+drives with every kind of bad one.
 """
 
 from __future__ import annotations
@@ -102,9 +103,8 @@ def write(folder: Path, tracks: pl.DataFrame, periods: dict[str, float | None]) 
 
 
 def drive_by_drive(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The code before the batch checks: every drive cast and checked on its own."""
+    """The reader's code before the cast per chunk: every drive cast on its own."""
     monkeypatch.setattr(parquet, "_drives_at_once", lambda *args: None)
-    monkeypatch.setattr(ingestion, "clean_batch", lambda drives: {})
 
 
 @pytest.mark.parametrize("frame", [False, True])
@@ -149,32 +149,30 @@ def test_the_batch_checks_give_what_each_drive_checked_alone_gives(tmp_path, fra
     tracks, periods = mixed(frame)
     drives = list(parquet.read_parquet(write(tmp_path / "in", tracks, periods)))
     cleaned = ingestion.clean_batch(drives)
-    for i, drive in enumerate(drives):
-        if drive.tracks.is_empty():
-            assert i not in cleaned
+    assert len(cleaned) == len(drives)
+    for drive, got in zip(drives, cleaned, strict=True):
+        (alone,) = ingestion.clean_batch([drive])
+        if isinstance(alone, InputError):
+            assert isinstance(got, InputError) and str(got) == str(alone), drive.drive_id
             continue
-        try:
-            alone = ingestion.clean_tracks(drive)
-        except InputError:
-            assert i not in cleaned  # a rejection and its message are clean_tracks' own
-            continue
-        if i in cleaned:
-            (got, dropped, reasons), (want, want_dropped, want_reasons) = cleaned[i], alone
-            assert got.schema == want.schema and got.equals(want, null_equal=True), drive.drive_id
-            assert (dropped, reasons) == (want_dropped, want_reasons), drive.drive_id
-    # the drives that pass every rule and have no repeated frame or t_s are the batch's own, dropped rows and all
-    # (with frames given, a sample period of 0.05 s no longer contradicts the timestamps' frames)
-    assert sorted(drives[i].drive_id for i in cleaned) == sorted([
-        "good", "shuffled", "bad_rows", "broken_values", "every_row_bad", "no_period", "cyclist", "alternating_a",
-        "alternating_b", *(["contradicted_period"] if frame else [])])
-    reasons = {drives[i].drive_id: r for i, (_, _, r) in cleaned.items()}
-    assert reasons["bad_rows"] == [
+        (rows, dropped, reasons), (want, want_dropped, want_reasons) = got, alone
+        assert rows.schema == want.schema and rows.equals(want, null_equal=True), drive.drive_id
+        assert (dropped, reasons) == (want_dropped, want_reasons), drive.drive_id
+        assert rows.equals(ingestion.clean_tracks(drive)[0], null_equal=True)
+    passed = {d.drive_id: r for d, r in zip(drives, cleaned, strict=True) if not isinstance(r, InputError)}
+    assert sorted(d for d, (rows, _, _) in passed.items() if rows.height) == sorted([
+        "good", "shuffled", "bad_rows", "broken_values", "duplicates", "second_sample", "second_sample_first",
+        "no_period", "cyclist", "alternating_a", "alternating_b",
+        *(["contradicted_period", "same_time"] if frame else [])])
+    assert passed["bad_rows"][2] == [
         "2 row(s) with a NULL, NaN or infinite t_s, x_m or y_m dropped",
         "1 row(s) with |x_m| or |y_m| above 1e+08 m or |t_s| above 1e+10 s dropped",
         "2 row(s) with a NULL actor_id, kind or frame dropped"]
-    assert reasons["broken_values"] == [
+    assert passed["broken_values"][2] == [
         "1 speed_mps value(s) beyond +-1000 set to NULL and derived from positions",
         "2 accel_mps2 value(s) beyond +-1000 set to NULL and derived from positions"]
+    # a second sample in a frame: the one nearest to frame * dt_s kept, whichever order the two came in
+    assert passed["second_sample"][0].drop("drive_id").equals(passed["second_sample_first"][0].drop("drive_id"))
 
 
 @pytest.mark.parametrize("frame", [False, True])
@@ -219,12 +217,19 @@ def test_a_mixed_batch_ingests_as_drive_by_drive_and_as_each_drive_alone(tmp_pat
                                                      "dropped (e.g. actor_id 'ego' at t_s = 2.9)"))
 
 
-def test_a_median_speed_at_the_limit_is_decided_by_the_drive_alone():
-    """A drive whose median speed is within a hair of the limit is left to clean_tracks, whose median decides."""
+def test_a_median_speed_at_the_limit_is_decided_by_the_drive_s_own_median():
+    """A drive whose median speed between samples is within rounding of the limit: alone or in a batch, the
+    decision is that of the median of its own speeds."""
     t = np.arange(11) * 0.1
     rows = actor("a", t, t * ingestion.MAX_MEDIAN_SPEED_MPS, Y1, drive_id="edge").with_columns(
         frame=pl.int_range(11, dtype=pl.Int64), heading_rad=pl.lit(None, pl.Float64),
         speed_mps=pl.lit(None, pl.Float64), accel_mps2=pl.lit(None, pl.Float64)
     ).select(ingestion.schema.TRACKS.column_names)
-    drive = ingestion.DriveData("edge", "parquet", "edge.parquet", 0.1, rows)
-    assert ingestion.clean_batch([drive]) == {}
+    other = ingestion.DriveData("other", "parquet", "o.parquet", 0.1, scene("other"))
+    for upper in (1.0, 1 + 2e-16, 1 - 2e-16):  # the limit a hair above, at and below the median
+        drive = ingestion.DriveData("edge", "parquet", "edge.parquet", 0.1, rows.with_columns(pl.col("x_m") * upper))
+        x, y, t = (drive.tracks[c] for c in ("x_m", "y_m", "t_s"))
+        too_fast = ((x.diff() ** 2 + y.diff() ** 2).sqrt() / t.diff()).drop_nulls().median() > \
+            ingestion.MAX_MEDIAN_SPEED_MPS
+        for got in (ingestion.clean_batch([drive])[0], ingestion.clean_batch([other, drive, other])[1]):
+            assert isinstance(got, InputError) == too_fast

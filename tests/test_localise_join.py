@@ -1,5 +1,5 @@
 """Map localisation as a join (``benchmarks/localise_join.py``, not wired in: it was exact but not faster) gives
-the rows of the shapely localisation ingest uses (``logiq_sql.localise.locate``, the reference): on a bundled
+the rows of the shapely localisation ingest used (``benchmarks.shapely_lanes.shapely_locate``, the reference): on a bundled
 drive of every map kind, and on hand-made polygons (a concave notch, a hole, an invalid bow-tie, a repeated
 centre-line vertex) with points on vertices, on edges, in the hole and the notch, at lane ends and 3 m away."""
 
@@ -12,7 +12,7 @@ import polars as pl
 import pytest
 
 from benchmarks.localise_join import join_locate
-from logiq_sql.localise import locate
+from benchmarks.shapely_lanes import shapely_locate
 from logiq_sql.readers.av2 import read_av2
 from logiq_sql.readers.commonroad import read_commonroad
 from logiq_sql.readers.scenarionet import read_scenarionet
@@ -24,7 +24,7 @@ KEY = ["drive_id", "actor_id", "frame", "lane_id"]
 
 def _differences(tracks: pl.DataFrame, lanes: pl.DataFrame) -> tuple[int, pl.DataFrame]:
     """(rows of the reference, the rows that differ: missing on one side, or off by more than 1e-9)."""
-    ref, new = locate(tracks, lanes), join_locate(tracks, lanes)
+    ref, new = shapely_locate(tracks, lanes), join_locate(tracks, lanes)
     both = ref.join(new, on=KEY, how="full", coalesce=True, suffix="_new")
     turn = pl.col("heading_diff_rad") - pl.col("heading_diff_rad_new")
     return ref.height, both.filter(

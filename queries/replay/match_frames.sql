@@ -4,7 +4,8 @@
 --
 -- The ego's and the actor's boxes (actor columns NULL where it is not tracked), the actor's gap, time
 -- headway and TTC as the relation query defines them (lon_gap_m, time_headway_s, ttc_s; NULL where
--- undefined).
+-- undefined), and the headway follower_vehicle tests (phases/follower_vehicle.sql: follow_gap_m / actor speed,
+-- follow_gap_m = greatest(lon_gap_m + lat_gap_m, box_distance_m)); the replay shows the one the scenario tests.
 select
     w.match_id,
     e.frame,
@@ -23,6 +24,8 @@ select
     a.speed_mps as actor_speed_mps,
     r.lon_gap_m,
     r.time_headway_s,
+    case when a.speed_mps > 0 then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / a.speed_mps end
+        as follow_headway_s,
     r.ttc_s
 from replay_windows as w
 inner join pair_tracks as e

@@ -13,6 +13,7 @@ select
     m.end_frame,
     m.start_s,
     m.end_s,
+    m.params_hash,
     d.dt_s,
     m.start_frame - cast(round($margin_s / nullif(d.dt_s, 0)) as bigint) as first_frame,
     m.end_frame + cast(round($margin_s / nullif(d.dt_s, 0)) as bigint) as last_frame
