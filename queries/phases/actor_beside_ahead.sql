@@ -1,7 +1,7 @@
 -- phase: actor_beside_ahead (cut_in_ahead_of_ego, phase 1; logiq_sql's own scenario, not a LogIQ page)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes
+-- reads: relations
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -17,7 +17,7 @@ select
     r.actor_id,
     r.frame,
     r.t_s,
-    el.lane_run as segment,
+    r.lane_run as segment,
     instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
     r.lon_gap_m > 0 as actor_ahead,
     r.adjacent_side is not null as actor_beside,
@@ -30,9 +30,7 @@ select
     r.lon_gap_m,
     r.adjacent_side,
     r.time_headway_s,
-    el.lane_id as ego_lane_id,
+    r.ego_lane_id,
     r.actor_lane_id
 from relations as r
-inner join ego_lanes as el
-    on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
 where r.dx_m > 0

@@ -1,7 +1,7 @@
 -- phase: ego_on_same_lane (sut_cut_out, phase 1)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes, drive_inputs, lane_successors
+-- reads: relations, ego_lanes, drive_inputs, lane_successors (joined on the integer keys drive_key, ego_key)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -32,20 +32,23 @@ turned_onto as (
 
 run_lanes as (
     -- the lanes the ego drives in each lane run
-    select distinct drive_id, ego_id, lane_run, lane_id
+    select distinct drive_key, ego_key, lane_run, lane_id
     from ego_lanes
     where lane_id is not null
 ),
 
 ahead as (
     select
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run,
-        el.lane_id as ego_lane_id,
+        r.lane_run,
+        r.ego_lane_id,
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
@@ -53,14 +56,12 @@ ahead as (
         r.lon_gap_m > 0 as actor_ahead,
         r.same_lane and (turn.turn_lane_id is null or driven.lane_id is not null) as actor_in_ego_lane
     from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
     inner join drive_inputs as d
-        on r.drive_id = d.drive_id
+        on r.drive_key = d.drive_key
     left join turned_onto as turn
-        on d.map_id = turn.map_id and el.lane_id = turn.lane_id and r.actor_lane_id = turn.turn_lane_id
+        on d.map_id = turn.map_id and r.ego_lane_id = turn.lane_id and r.actor_lane_id = turn.turn_lane_id
     left join run_lanes as driven
-        on el.drive_id = driven.drive_id and el.ego_id = driven.ego_id and el.lane_run = driven.lane_run
+        on r.drive_key = driven.drive_key and r.ego_key = driven.ego_key and r.lane_run = driven.lane_run
         and r.actor_lane_id = driven.lane_id
     where r.dx_m > 0
 ),
@@ -68,29 +69,29 @@ ahead as (
 nearest_gap as (
     -- the road user the ego follows is the one right ahead of it in the lane: the least gap per frame (grouped
     -- minima rather than a ranking window: a hash aggregate over the few rows in lane, not a sort of them all)
-    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    select drive_key, ego_key, frame, min(lon_gap_m) as lon_gap_m
     from ahead
     where actor_ahead and actor_in_ego_lane
-    group by drive_id, ego_id, frame
+    group by drive_key, ego_key, frame
 ),
 
 nearest as (
     -- of several at that least gap, the smallest actor_id
-    select a.drive_id, a.ego_id, a.frame, min(a.actor_id) as actor_id
+    select a.drive_key, a.ego_key, a.frame, min(a.actor_key) as actor_key
     from ahead as a
     inner join nearest_gap as g
-        on a.drive_id = g.drive_id and a.ego_id = g.ego_id and a.frame = g.frame and a.lon_gap_m = g.lon_gap_m
+        on a.drive_key = g.drive_key and a.ego_key = g.ego_key and a.frame = g.frame and a.lon_gap_m = g.lon_gap_m
     where a.actor_ahead and a.actor_in_ego_lane
-    group by a.drive_id, a.ego_id, a.frame
+    group by a.drive_key, a.ego_key, a.frame
 ),
 
 ranked as (
     select
         a.*,
-        n.actor_id is not null as is_nearest
+        n.actor_key is not null as is_nearest
     from ahead as a
     left join nearest as n
-        on a.drive_id = n.drive_id and a.ego_id = n.ego_id and a.frame = n.frame and a.actor_id = n.actor_id
+        on a.drive_key = n.drive_key and a.ego_key = n.ego_key and a.frame = n.frame and a.actor_key = n.actor_key
 ),
 
 conditions as (
@@ -111,7 +112,10 @@ conditions as (
         ego_lane_id,
         actor_lane_id,
         lon_gap_m,
-        time_headway_s
+        time_headway_s,
+        drive_key,
+        ego_key,
+        actor_key
     from ranked
 )
 

@@ -25,6 +25,9 @@
 --   lat_gap_m           side-to-side gap along the ego y axis, same rule
 --   box_distance_m      closest distance between the two boxes, 0 when they overlap (separating-axis test);
 --                       otherwise the least corner-to-box distance over the 8 corners (exact for rectangles)
+--   ego_lane_id         the ego's lane (ego_lanes.lane_id), lane_run its lane run (ego_lanes.lane_run)
+--   ego_speed_mps, actor_speed_mps  the two speeds (tracks.speed_mps): the phases read them from here, not
+--                       from tracks
 --   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor (lane_line)
 --   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours)
 --   closing_speed_mps   rate at which lon_gap shrinks: actor speed along the ego axis minus ego speed,
@@ -51,6 +54,7 @@ ego as (
     select
         t.*,
         el.lane_id as ego_lane_id,
+        el.lane_run,
         cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
@@ -70,6 +74,7 @@ pairs as (
         e.frame,
         e.t_s,
         e.ego_lane_id,
+        e.lane_run,
         e.speed_mps as ego_speed_mps,
         e.accel_mps2 as ego_accel_mps2,
         e.length_m as ego_length_m,
@@ -231,11 +236,14 @@ select
     lat_gap_m,
     case when boxes_overlap then 0.0 else corner_distance_m end as box_distance_m,
     ego_lane_id,
+    lane_run,
     actor_lane_id,
     same_lane,
     adjacent_side,
     case when dy_m >= 0 then 'left' else 'right' end as side,
     closing_speed_mps,
+    ego_speed_mps,
+    actor_speed_mps,
     case
         when dx_m < 0 and actor_speed_mps > 0 then lon_gap_m / actor_speed_mps
         when dx_m >= 0 and ego_speed_mps > 0 then lon_gap_m / ego_speed_mps
