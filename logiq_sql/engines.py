@@ -59,7 +59,9 @@ class Engine:
 
     name = "engine"
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+        """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``
+        is true (a phase step in a match, where nothing reads the others: ``runner.run_scenario``)."""
         raise NotImplementedError
 
     def frame(self, sql: str) -> pl.DataFrame:
@@ -103,19 +105,19 @@ class DuckEngine(Engine):
         self._kept: dict[tuple[str, tuple], str] = {}  # a shared step -> the temp table holding its rows
         self._views: set[str] = set()  # step tables that are views of a kept table
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         if table in self._views:  # a table cannot replace a view
             self.con.execute(f"drop view {table}")
             self._views.discard(table)
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
-            materialise(self.con, table, relative, values)
+            materialise(self.con, table, relative, values, holding)
             return
         # computed once, read by each scenario through a view: at tier S ego_on_same_lane.sql costs about 2 CPU s,
         # a copy of its 1.1 M rows 0.6
-        if key not in self._kept:
+        if key not in self._kept:  # (shared steps are phase steps of a match: each reader asks for the same rows)
             self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
-            materialise(self.con, self._kept[key], relative, values)
+            materialise(self.con, self._kept[key], relative, values, holding)
         self.con.execute(f"drop table if exists temp.main.{table}")
         self.con.execute(f"create temp view {table} as select * from {self._kept[key]}")
         self._views.add(table)
@@ -327,12 +329,13 @@ class SparkEngine(Engine):
         if old is not None:
             old.unpersist()
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         args = bind(relative, values)
         *shared, (_, query) = spark_statements(relative)
         for view, text in shared:  # the CTEs read more than once, computed once (spark_statements)
             self.keep_frame(view, self.spark.sql(text, args=args))
-        self.keep_frame(table, self.spark.sql(query, args=args))
+        rows = self.spark.sql(query, args=args)
+        self.keep_frame(table, rows.where("holds") if holding else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
 
     def frame(self, sql: str) -> pl.DataFrame:
@@ -558,9 +561,10 @@ class PolarsEngine(Engine):
         return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
                 .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         check_engine(self.name, [relative])
-        self.ctx.register(table, self.run(relative, values).lazy())
+        rows = self.run(relative, values)
+        self.ctx.register(table, (rows.filter(pl.col("holds")) if holding else rows).lazy())
 
     def frame(self, sql: str) -> pl.DataFrame:
         return self.ctx.execute(_as_query(sql), eager=True)

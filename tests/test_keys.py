@@ -5,7 +5,6 @@ the keys of its track row; a file written before the keys existed gets them when
 from __future__ import annotations
 
 import duckdb
-import polars as pl
 
 from logiq_sql import db, schema
 from tests.helpers import Y1, Y2, actor, make_db, times
