@@ -17,7 +17,9 @@ the drive has one (nuScenes, Argoverse 2).
 
 Measured in one process, in this order: the floor (a plain DuckDB scan and group-by over the tier's track
 columns), ingest of the replicated Parquet (kinematics SQL, shapely localisation, writing the file), matching
-every scenario with KPIs and coverage, the floor again (the faster floor is used). Each stage's wall time, rows
+every scenario with KPIs and coverage, re-matching everything (match --force) with and without the step cache,
+re-matching after one parameter of one scenario changed (PARAM_CHANGE) and after it changed back, the floor again
+(the faster floor is used). Each stage's wall time, rows
 per second and peak resident memory come from logiq_sql.timing. At tier S the per-pair baseline
 (benchmarks/baseline.py) runs on the same file, is checked to give the same matches, and is timed against the
 SQL matcher on the same two scenarios. Written: benchmarks/results/<TIER>.json and <TIER>.md.
@@ -26,9 +28,11 @@ SQL matcher on the same two scenarios. Written: benchmarks/results/<TIER>.json a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import multiprocessing
+import os
 import platform
 import resource
 import shutil
@@ -41,7 +45,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import schema
+from logiq_sql import schema, step_cache
 from logiq_sql.db import memory_limit
 from logiq_sql.ingestion import ingest
 from logiq_sql.match import match
@@ -60,6 +64,10 @@ select drive_id, actor_id, count(*), min(t_s), max(t_s), avg(x_m), avg(y_m), avg
 from read_parquet($path)
 group by drive_id, actor_id
 """
+# the parameter change of the param_rematch stage: one parameter of one scenario, read by its phase query; and one
+# read only by the generic steps after the phases (a phase's least duration), measured after it
+PARAM_CHANGE = ("follower_vehicle", {"same_road_limit": "8sec"})
+DURATION_CHANGE = ("follower_vehicle", {"min_scenario_duration": "2sec"})
 BASELINE_SCENARIOS = ("follower_vehicle", "cyclist_close_to_moving_sut")
 # each tier's outputs from the code before a speed change (written with --write-golden), compared on every run:
 # a lever that changes a match, phase or KPI shows here at scale, not only on the bundled drives (tests/golden.py)
@@ -189,6 +197,36 @@ def floor_s(path: Path) -> tuple[float, float]:
     return time.perf_counter() - start, cpu_seconds() - cpu
 
 
+@contextlib.contextmanager
+def step_cache_mode(mode: str):
+    """$LOGIQ_SQL_STEP_CACHE set to ``mode`` inside the block (logiq_sql/step_cache.py)."""
+    before = os.environ.get(step_cache.MODE_ENV)
+    os.environ[step_cache.MODE_ENV] = mode
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[step_cache.MODE_ENV]
+        else:
+            os.environ[step_cache.MODE_ENV] = before
+
+
+def param_rematch(db: Path, ego: str, change: tuple[str, dict[str, str]]) -> dict[str, object]:
+    """An analyst's re-match: one parameter of one scenario changed (``change``), every scenario asked for, as
+    ``match --set`` would; the others are up to date and the step cache gives the steps the change leaves alone.
+    Then the parameter back to its default (timed too), so the file holds the default results the golden check
+    compares."""
+    scenario, override = change
+    out: dict[str, object] = {"scenario": scenario, "override": override}
+    for label, overrides in (("", override), ("back_", {})):
+        start, cpu = time.perf_counter(), cpu_seconds()
+        result = match(db, ego=ego, overrides=overrides)
+        out[f"{label}seconds"], out[f"{label}cpu_seconds"] = time.perf_counter() - start, cpu_seconds() - cpu
+        out[f"{label}cache"] = result.cache
+        out[f"{label}up_to_date"] = result.up_to_date
+    return out
+
+
 def run_baseline(db: Path, ego: str) -> dict[str, object]:
     """Time the SQL matcher and the per-pair baseline on the baseline's two scenarios, with the meaning the baseline
     implements (baseline.SAME_MEANING), and check that they find exactly the same matches."""
@@ -258,6 +296,7 @@ def engine_rematch_apart(db: Path, engine: str, ego: str, duckdb_s: float, duckd
 
 
 def markdown(r: dict) -> str:
+    p, d = r["param_rematch"], r["duration_rematch"]
     lines = [f"# Tier {r['tier']}: {r['rows']:,} track rows, {r['drives']:,} drives, ego {r['ego']}", "",
              f"Measured {r['measured_at']} on {r['machine']}. Floor (plain DuckDB scan + group-by): "
              f"{r['floor_s']:.2f} s ({r['rows'] / r['floor_s']:,.0f} rows/s).", "",
@@ -272,7 +311,14 @@ def markdown(r: dict) -> str:
               f"= {r['cpu_ratio_to_floor']:.1f}x.", "",
               f"**Re-matching** (match --force on the ingested file): {r['rematch_s']:.1f} s = "
               f"{r['rematch_rows_per_s']:,.0f} rows/s, {r['rematch_ratio_to_floor']:.1f}x the floor; "
-              f"CPU {r['rematch_cpu_s']:.1f} s.", "",
+              f"CPU {r['rematch_cpu_s']:.1f} s; with no step cache (LOGIQ_SQL_STEP_CACHE=off) "
+              f"{r['rematch_nocache_s']:.1f} s, CPU {r['rematch_nocache_cpu_s']:.1f} s.", "",
+              f"**Re-matching after one parameter change** ({p['scenario']} {p['override']}, every scenario asked "
+              f"for): {r['param_rematch_s']:.2f} s = {r['param_rematch_rows_per_s']:,.0f} rows/s, "
+              f"{r['param_rematch_ratio_to_floor']:.1f}x the floor; CPU {p['cpu_seconds']:.1f} s; {p['cache']}. "
+              f"Back to the default: {p['back_seconds']:.2f} s. A parameter only the steps after the phases read "
+              f"({d['scenario']} {d['override']}): {d['seconds']:.2f} s, CPU {d['cpu_seconds']:.1f} s; "
+              f"{d['cache'].split(';')[0]}.", "",
               "**Golden** (benchmarks/golden/, the outputs before the speed work): "
               + ", ".join(f"{k} {v}" for k, v in r["golden"].items()) + "."]
     for engine, e in r.get("engines", {}).items():
@@ -328,6 +374,13 @@ def main(argv: list[str] | None = None) -> dict:
         start, cpu = time.perf_counter(), cpu_seconds()
         match(db, ego=args.ego, force=True)
         rematch_s, rematch_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    # the same with no step cache (LOGIQ_SQL_STEP_CACHE=off): what keeping the steps costs a run that reuses none
+    with step_cache_mode("off"):
+        start, cpu = time.perf_counter(), cpu_seconds()
+        match(db, ego=args.ego, force=True)
+        rematch_nocache_s, rematch_nocache_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    param = param_rematch(db, args.ego, PARAM_CHANGE)
+    duration = param_rematch(db, args.ego, DURATION_CHANGE)
     engines = {name: engine_rematch_apart(db, name, args.ego, rematch_s, rematch_cpu) for name in args.engines}
     floor_second = floor_s(tracks)
     floor, floor_cpu = min(floor_first, floor_second)
@@ -353,6 +406,10 @@ def main(argv: list[str] | None = None) -> dict:
         "rematch_s": rematch_s, "rematch_rows_per_s": n / rematch_s, "rematch_ratio_to_floor": rematch_s / floor,
         "rematch_stages": dict(rematch_rec.seconds), "rematch_stage_cpu_s": dict(rematch_rec.cpu_seconds),
         "rematch_cpu_s": rematch_cpu,
+        "rematch_nocache_s": rematch_nocache_s, "rematch_nocache_cpu_s": rematch_nocache_cpu,
+        "param_rematch_s": param["seconds"], "param_rematch_rows_per_s": n / param["seconds"],
+        "param_rematch_ratio_to_floor": param["seconds"] / floor, "param_rematch": param,
+        "duration_rematch": duration,
         "floor_cpu_s": floor_cpu, "ingest_cpu_s": ingest_cpu, "match_cpu_s": match_cpu,
         "pipeline_cpu_s": ingest_cpu + match_cpu, "cpu_ratio_to_floor": (ingest_cpu + match_cpu) / floor_cpu,
         "golden": golden_check(db, args.tier, args.write_golden), "engines": engines,

@@ -199,15 +199,20 @@ def cmd_lint(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _existing_db(args: argparse.Namespace) -> str:
+    db = _db(args)
+    if not Path(db).is_file():
+        raise LogiqError(f"--db {db}: no such file (write one with `logiq-sql ingest`).")
+    return db
+
+
 def cmd_query(args: argparse.Namespace) -> int:
     import duckdb
     import polars as pl
 
     from logiq_sql.db import open_for_read
 
-    db = _db(args)
-    if not Path(db).is_file():
-        raise LogiqError(f"--db {db}: no such file (write one with `logiq-sql ingest`).")
+    db = _existing_db(args)
     if args.limit is not None and args.limit < 0:
         raise LogiqError(f"--limit {args.limit}: give a number of rows >= 0 (0: every row).")
     with open_for_read(db) as con:
@@ -266,6 +271,19 @@ def cmd_new_scenario(args: argparse.Namespace) -> int:
         print(f"wrote {path}")
     print(f"next: logiq-sql lint {args.name} --scenario-path {args.dir}; then logiq-sql match --scenario-path "
           f"{args.dir} --scenario {args.name} (the contract: docs/scenarios.md)")
+    return EXIT_OK
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    from logiq_sql import step_cache
+    from logiq_sql.db import open_for_read, open_for_write
+
+    db = _existing_db(args)
+    if args.clear:
+        with open_for_write(db) as con:
+            step_cache.clear(con)
+    with open_for_read(db) as con:
+        print(f"step cache of {db}: {step_cache.describe(step_cache.size(con))}")
     return EXIT_OK
 
 
@@ -493,6 +511,15 @@ def add_info(sub) -> None:
     _add_db(p)
 
 
+def add_cache(sub) -> None:
+    p = _command(sub, "cache", cmd_cache, "the size of the step cache in a DuckDB file, or --clear it",
+                 "match keeps the rows of its steps in the file and reads them back when a later run needs the same "
+                 "step (same SQL, values and drive rows): docs/operations.md, 'The step cache'. Re-ingesting a drive "
+                 "drops its entries; --clear drops all.")
+    _add_db(p)
+    p.add_argument("--clear", action="store_true", help="drop every entry of the cache")
+
+
 def add_report(sub) -> None:
     p = _command(sub, "report", cmd_report, "write one self-contained HTML report of a matched file",
                  "Coverage histograms, KPI distributions, the match table with filters, every drive's status and "
@@ -613,7 +640,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"logiq-sql {version('logiq-sql')}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (add_ingest, add_match, add_scenarios, add_lint, add_new_scenario, add_render, add_explain, add_query,
-                add_info, add_report, add_replay, add_export, add_eval):
+                add_info, add_cache, add_report, add_replay, add_export, add_eval):
         add(sub)
     return parser
 

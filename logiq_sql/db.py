@@ -132,8 +132,37 @@ DRIVE_SCENARIOS = Table(
     ),
 )
 
+INGEST_VERSIONS = Table(
+    "ingest_versions",
+    "One row per drive written by ingest: a version that changes whenever the drive's rows or its map's rows are "
+    "written again. The step cache (step_cache) trusts an entry only for the version it was computed from.",
+    (
+        Column("drive_id", S, "Drive (drive_inputs.drive_id).", False),
+        Column("ingest_version", S, "A fresh random id per ingest of the drive, or of another drive on its map.",
+               False),
+    ),
+)
+
+STEP_CACHE = Table(
+    "step_cache",
+    "The step cache's index (logiq_sql/step_cache.py): one row per (scenario, step, drive) whose step output is kept "
+    "in the table step_cache_<key>. A step's key is a digest of its query text, the values it binds, the keys of "
+    "the step tables it reads and the DuckDB version; an entry is read only while the drive's ingest version is "
+    "the one it was computed from. Re-ingesting a drive drops its entries.",
+    (
+        Column("scenario", S, "A scenario whose run used the entry: each scenario keeps its latest entry per step.",
+               False),
+        Column("step", S, "The step table and its query file, e.g. 'phase_1 phases/ego_follows_actor.sql'.", False),
+        Column("drive_id", S, "Drive.", False),
+        Column("step_key", S, "Digest of the step's query text, bound values and inputs (see the table comment).",
+               False),
+        Column("table_name", S, "The table holding the step's rows (of every drive with this key).", False),
+        Column("ingest_version", S, "ingest_versions.ingest_version of the drive when the step was computed.", False),
+    ),
+)
+
 OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
-TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, *OUTPUT_TABLES)
+TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
 
 _DUCK_TYPES = {pl.String(): "VARCHAR", pl.Float64(): "DOUBLE", pl.Int64(): "BIGINT", pl.Boolean(): "BOOLEAN"}
 
@@ -548,6 +577,13 @@ def docs_markdown() -> str:
             "area of every ego-actor pair whose paths through a junction cross, as WKT with the stretch of each "
             "path along which its box overlaps the area (`logiq_sql/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
             "traffic_light.", "",
+            "## `step_cache_<key>`", "",
+            "The rows of one step of a match run, for every drive whose `step_cache` entry names the table: the "
+            "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them. "
+            "`match` reads them back instead of running the step again when the step's query text, bound values "
+            "and inputs and the drive's ingest version are the same (`logiq_sql/step_cache.py`; README, 'The step "
+            "cache'). Rows no entry refers to are deleted, a table with none dropped; `logiq-sql cache --db FILE` "
+            "gives their size, `--clear` drops them all.", "",
             "## `drives` (view)", "",
             "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
     return "\n".join(out)

@@ -23,6 +23,7 @@ import re
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import duckdb
@@ -33,7 +34,7 @@ from sqlglot import exp
 from logiq_sql import dataset, schema
 from logiq_sql.errors import LogiqError, arg
 from logiq_sql.paths import query_path
-from logiq_sql.sql import bind, materialise, query_text, sql_literal, step_key, used_values
+from logiq_sql.sql import bind, cte_names, materialise, query_text, sql_literal, step_key, tables_read, used_values
 
 ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
@@ -41,6 +42,9 @@ DEFAULT_SPARK_MASTER = "local[2]"
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
 INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
+# what a step may read besides other steps: the canonical tables (a drive's rows and its map's, versioned by
+# ingest_versions) and the batch's drive ids
+DRIVE_INPUT_NAMES = frozenset({*(t.name for t in INPUT_TABLES), "run_drives"})
 
 
 class EngineError(LogiqError):
@@ -58,6 +62,7 @@ class Engine:
     """What the matcher needs from an engine (module docstring); DuckEngine is the reference."""
 
     name = "engine"
+    owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``
@@ -99,16 +104,54 @@ class DuckEngine(Engine):
 
     name = "duckdb"
 
-    def __init__(self, con: duckdb.DuckDBPyConnection):
+    def __init__(self, con: duckdb.DuckDBPyConnection, cache=None):
         self.con = con
+        self.cache = cache  # a logiq_sql.step_cache.StepCache, or None: every step runs
         self._shared: frozenset[tuple[str, tuple]] = frozenset()
         self._kept: dict[tuple[str, tuple], str] = {}  # a shared step -> the temp table holding its rows
         self._views: set[str] = set()  # step tables that are views of a kept table
+        self._keys: dict[str, str | None] = {}  # the batch's step tables -> their cache keys (None: not cacheable)
+
+    def _cache_key(self, text: str, bound: dict[str, object], reads: frozenset[str]) -> str | None:
+        """The step's cache key, or None when the cache is off or the step reads a table of unknown content."""
+        if self.cache is None or not self.cache.usable:
+            return None
+        inputs: dict[str, str] = {}
+        for name in reads:
+            if name in self._keys:
+                if self._keys[name] is None:
+                    return None
+                inputs[name] = self._keys[name]
+            elif name not in DRIVE_INPUT_NAMES:
+                return None
+        return self.cache.key(text, bound, inputs)
+
+    def _cached(self, table: str, step: str, key: str | None, compute) -> None:
+        """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept)."""
+        if key is not None and self.cache.load(table, key):
+            self._keys[table] = key
+            self.cache.record(self.owners, step, table, key, computed=False)
+            return
+        started = time.process_time()
+        compute()
+        self._keys[table] = key
+        if key is not None:
+            self.cache.record(self.owners, step, table, key, computed=True,
+                              compute_s=time.process_time() - started)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         if table in self._views:  # a table cannot replace a view
             self.con.execute(f"drop view {table}")
             self._views.discard(table)
+        text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
+        key = self._cache_key(text, bind(relative, values), tables_read(relative) - cte_names(relative))
+        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
+
+    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
+        key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
+        self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
+
+    def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
             materialise(self.con, table, relative, values, holding)
@@ -140,8 +183,12 @@ class DuckEngine(Engine):
         self.con.register(f"_{table}", frame)
         self.con.execute(f"create or replace temp table {table} as select * from _{table}")
         self.con.unregister(f"_{table}")
+        self._keys[table] = None  # rows from elsewhere: steps reading them are not cached
 
     def select_drives(self) -> None:
+        self._keys = {}
+        if self.cache is not None:
+            self.cache.start_batch()
         # a temp table shadows the stored table of the same name, so every query of the batch reads the batch's
         # rows: a batch then costs what its drives hold, not what the whole file holds (at 10 M rows, queries
         # reading the whole track_lanes per batch made matching grow with batches x file size)
@@ -156,6 +203,7 @@ class DuckEngine(Engine):
 
     def release_drives(self) -> None:
         self._forget_shared()
+        self._keys = {}
         for table in PARTITIONED_BY_DRIVE:
             self.con.execute(f"drop table if exists temp.main.{table}")
 
@@ -457,9 +505,10 @@ def render_for_engine(name: str, s, steps: list[tuple[str, str]], values: dict[s
 
 
 def open_engine(name: str, con: duckdb.DuckDBPyConnection, spark_master: str | None = None,
-                spark_tables: str | None = None) -> Engine:
+                spark_tables: str | None = None, cache=None) -> Engine:
+    """The engine ``name`` on ``con``; ``cache`` (a StepCache) is used by the DuckDB engine only."""
     if name == "duckdb":
-        return DuckEngine(con)
+        return DuckEngine(con, cache)
     if name == "spark":
         return SparkEngine(con, spark_master, spark_tables)
     if name == "polars":

@@ -11,20 +11,21 @@ import difflib
 import re
 from collections.abc import Mapping
 
-_ARG = re.compile(r"\x00(\w+)\x01([^\x01\x02]*)\x01([^\x01\x02]*)\x02")
+_ARG = re.compile(r"\x00(\w+)\x01([^\x01\x02]*)\x01([^\x01\x02]*)\x01([^\x01\x02]*)\x02")
 
 
 def arg(name: str, value: object = "", key: str = "") -> str:
     """The Python argument ``name`` (with the ``value`` the caller gave, and for a dict argument its ``key``) as it
     appears inside a message; rendered as ``name=value`` for Python and as the command-line flag by the CLI."""
-    return f"\x00{name}\x01{key}\x01{value}\x02"
+    python = repr(value) if isinstance(value, int | float) else repr(str(value))  # a path reads as its text
+    return f"\x00{name}\x01{key}\x01{value}\x01{python}\x02"
 
 
 def _python(m: re.Match) -> str:
-    name, key, value = m.groups()
+    name, key, value, python = m.groups()
     if key:
-        return f"{name}[{key!r}]={value!r}"
-    return f"{name}={value!r}" if value else f"{name}="
+        return f"{name}[{key!r}]={python}"
+    return f"{name}={python}" if value else f"{name}="
 
 
 class SpeltArguments:
@@ -37,7 +38,7 @@ class SpeltArguments:
             return _ARG.sub(_python, text)
 
         def flag(m: re.Match) -> str:
-            name, key, value = m.groups()
+            name, key, value, _ = m.groups()
             spelt = flags.get(name, "--" + name.replace("_", "-"))
             return f"{spelt} {key}={value}" if key else f"{spelt} {value}".rstrip()
 

@@ -16,7 +16,7 @@ import duckdb
 import numpy as np
 import polars as pl
 
-from logiq_sql import db, schema
+from logiq_sql import db, schema, step_cache
 from logiq_sql.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.localise import locate
 from logiq_sql.match import PERSISTED
@@ -415,6 +415,9 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
         con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
         _drop_outputs(con, ids["drive_id"].to_list())
+        # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
+        step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
+                                     "where map_id in (select map_id from _map_ids)")
         for table in schema.MAP_TABLE_NAMES:
             con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive cost 0.4 s per 100 drives)
@@ -501,6 +504,9 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, [drive.drive_id])
+        con.register("_rejected", pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String}))
+        step_cache.set_versions(con, "select drive_id from _rejected")
+        con.unregister("_rejected")
         db.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,

@@ -23,7 +23,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import db, relations_of
+from logiq_sql import db, relations_of, step_cache
 from logiq_sql.batching import batches
 from logiq_sql.engines import check_engine, open_engine
 from logiq_sql.errors import ScenarioError, arg, did_you_mean
@@ -46,6 +46,7 @@ from logiq_sql.plan import render as render  # noqa: F401
 from logiq_sql.plan import scenario_steps as scenario_steps  # noqa: F401
 from logiq_sql.runner import prepare_relations, run_scenario, shared_phase_steps
 from logiq_sql.scenario import Scenario, ScenarioPath
+from logiq_sql.step_cache import StepCache
 from logiq_sql.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.store import PERSISTED, ensure_kpi_columns, export, store_batch
 
@@ -68,6 +69,8 @@ class MatchResult:
     coverage: pl.DataFrame
     drives: pl.DataFrame
     up_to_date: dict[str, int] = field(default_factory=dict)  # scenario -> drives skipped as already matched
+    cache: str = ""  # what the step cache did in the run and its size afterwards (logiq_sql/step_cache.py)
+    cache_steps: list = field(default_factory=list)  # StepCache.steps: each cached step, reused or computed
 
     def summary(self) -> str:
         lines = []
@@ -88,6 +91,8 @@ class MatchResult:
             for r in per.sort("scenario").iter_rows(named=True):
                 lines.append(f"  {r['scenario']}: {r['matches']} matches in {r['drives']} drive(s), "
                              f"mean duration {r['mean_s']:.1f} s")
+        if self.cache:
+            lines.append(self.cache)
         return "\n".join(lines)
 
 
@@ -147,7 +152,12 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
     with db.open_for_write(db_path, wait_s, say) as con, contextlib.ExitStack() as cleanup:
         run_drives = select_run_drives(con, drives)
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
-        runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables))
+        # the step cache (DuckDB engine only; a named in-memory database of match_frames has nothing to keep it
+        # for): force recomputes every step, and still keeps what it computed
+        mode = step_cache.mode()
+        cache = (StepCache(con, read=not force, keep_all=mode == "all")
+                 if engine == "duckdb" and mode != "off" and not str(db_path).startswith(":memory:") else None)
+        runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables), cache)
         cleanup.callback(runner.close)
         relations_of.install(con)  # the relation of any ego on demand, since relations is kept only with keep
         run_id = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
@@ -202,6 +212,10 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         con.register("run_drives", run_drives)
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date
+        if cache is not None:
+            kept = step_cache.size(con)  # its bytes only once the run is published: `logiq-sql cache` says them
+            result.cache = f"{cache.summary()}; {kept['rows']:,} rows kept in {kept['tables']} table(s)"
+            result.cache_steps = cache.steps
         if out is not None:
             export(con, out)
         return result

@@ -51,6 +51,7 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
     kinds some scenario of ``group`` can use (``plan.relation_kinds_csv``), or of every kind with ``every_kind``
     (``explain``, which shows the pairs a scenario cannot match too)."""
     engine = as_engine(con)
+    engine.owners = tuple(s.name for s in group)
     values = {**values, "relation_kinds_csv": ALL_KINDS_CSV if every_kind else relation_kinds_csv(group)}
     with stage("relations"):
         engine.materialise("egos", "relations/egos.sql", values)
@@ -112,6 +113,7 @@ def is_phase(table: str) -> bool:
 
 def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> ScenarioOutput:
     """The scenario's phases, matches, KPIs and coverage samples on the batch's relations."""
+    engine.owners = (s.name,)
     with stage(f"scenario {s.name}"):
         for table, rel in phase_steps(s):
             engine.materialise(table, rel, values, holding=is_phase(table))

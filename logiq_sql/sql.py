@@ -45,6 +45,12 @@ def tables_read(relative: str) -> frozenset[str]:
     return frozenset(t.name for t in sqlglot.parse_one(query_text(relative), read="duckdb").find_all(exp.Table))
 
 
+@functools.cache
+def cte_names(relative: str) -> frozenset[str]:
+    """The names of the CTEs a query file defines."""
+    return frozenset(c.alias for c in sqlglot.parse_one(query_text(relative), read="duckdb").find_all(exp.CTE))
+
+
 def unit_constant(name: str) -> float | None:
     """``mph_per_mps`` -> how many mph one m/s is. None if ``name`` is not such a constant."""
     m = _UNIT_CONSTANT.match(name)
