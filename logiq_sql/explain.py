@@ -10,7 +10,9 @@ furthest (``queries/match/chain.sql``, the same chains the matcher completes):
     matched          the pair has a match (a complete chain whose phases also fit their durations)
     failed_phase     the phase that could not begin (phase 1 when it never held; NULL when matched)
     at_s, at_frame   when it was needed: the frame right after the last phase reached stopped holding; when
-                     phase 1 never held, the frame at which most of phase 1's conditions held
+                     phase 1 never held, the frame at which most of phase 1's conditions held and, of several,
+                     the one at which the two are closest (box to box): the moment a person looks at (a
+                     cyclist's closest pass, not the first frame it was seen far away)
     failed           the conditions of failed_phase that are false there, each with its measured value and
                      the test it applies (the parameter values are in ``parameters``)
     in_jitter        failed_phase holds at that frame, but only within a run dropped as jitter (below)
@@ -20,6 +22,10 @@ furthest (``queries/match/chain.sql``, the same chains the matcher completes):
                      (``phase_runs.jitter``)
     chained          when the phases chained but no match fits their durations: each phase of the earliest
                      complete chain, its span and the limits it must meet
+    unmatched        for a matched pair, the stretches of frames at which phase 1's query has a row for the pair
+                     (it is a candidate) but phase 1 does not hold and no match covers them, each with the
+                     conditions that are false at its first frame: why the rest of the pair's time is no match
+                     (a follower whose first seconds are not matched)
 """
 
 from __future__ import annotations
@@ -53,10 +59,14 @@ with best as (
 ),
 pairs as (select distinct drive_id, ego_id, actor_id from phase_1),
 scored as (
-    -- where phase 1 never held: the frame with the most phase-1 conditions true, earliest first
-    select drive_id, ego_id, actor_id, frame,
-        row_number() over (partition by drive_id, ego_id, actor_id order by score desc, frame) as rank
+    -- where phase 1 never held: the frame with the most phase-1 conditions true, the two closest first
+    select s.drive_id, s.ego_id, s.actor_id, s.frame,
+        row_number() over (
+            partition by s.drive_id, s.ego_id, s.actor_id order by s.score desc, r.box_distance_m nulls last, s.frame
+        ) as rank
     from (select *, {score} as score from phase_1) as s
+    left join relations as r
+        on s.drive_id = r.drive_id and s.ego_id = r.ego_id and s.actor_id = r.actor_id and s.frame = r.frame
 )
 select
     p.drive_id, p.ego_id, p.actor_id,
@@ -92,6 +102,26 @@ select s.drive_id, s.ego_id, s.actor_id, s.phase_index, s.phase_start_frame * d.
 from steps as s inner join drive_inputs as d on s.drive_id = d.drive_id
 order by s.drive_id, s.ego_id, s.actor_id, s.phase_index
 """
+# per matched pair: the stretches of phase 1's rows at which phase 1 does not hold and no match covers the frame
+_UNMATCHED = """
+with candidate as (
+    select distinct p.drive_id, p.ego_id, p.actor_id, p.frame, p.t_s
+    from phase_1 as p
+    inner join (select distinct drive_id, ego_id, actor_id from scenario_match) as k
+        on p.drive_id = k.drive_id and p.ego_id = k.ego_id and p.actor_id = k.actor_id
+    where not coalesce(p.holds, false)
+        and not exists (select 1 from scenario_match as m
+                        where m.drive_id = p.drive_id and m.ego_id = p.ego_id and m.actor_id = p.actor_id
+                            and p.frame between m.start_frame and m.end_frame)
+),
+stretches as (
+    select *, frame - row_number() over (partition by drive_id, ego_id, actor_id order by frame) as stretch
+    from candidate
+)
+select drive_id, ego_id, actor_id, min(frame) as start_frame, max(frame) as end_frame, min(t_s) as start_s,
+    max(t_s) as end_s
+from stretches group by drive_id, ego_id, actor_id, stretch
+"""
 _BRIDGED = """
 select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames, jitter
 from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
@@ -100,7 +130,7 @@ from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, ph
 
 @dataclass
 class Explanation:
-    pairs: pl.DataFrame  # one row per (ego, actor): phases_reached, matched, failed_phase, at_s, failed, in_jitter, bridged, chained
+    pairs: pl.DataFrame  # one row per (ego, actor): phases_reached, matched, failed_phase, at_s, failed, in_jitter, bridged, chained, unmatched
     parameters: dict[str, str]  # the scenario's parameter values, as written
 
     def text(self) -> str:
@@ -109,6 +139,7 @@ class Explanation:
             head = f"ego {r['ego_id']}, actor {r['actor_id']}: {r['phases_reached']} of {r['phase_count']} phases"
             if r["matched"]:
                 lines.append(head + " -- matched")
+                lines += [f"    {u}" for u in r["unmatched"]]
             elif r["failed_phase"] is None:
                 lines.append(head + " chained, but no chain fits the phases' duration limits (min/max_duration); "
                              "the earliest chain, before the first phase is trimmed to its last max and the last "
@@ -123,7 +154,10 @@ class Explanation:
                 lines += [f"    {f}" for f in r["failed"]] or [
                     "    all its conditions hold at this frame, but only in a run dropped as jitter (below)"
                     if r["in_jitter"] else
-                    "    all its conditions hold at this frame, but the run it holds in does not continue the chain"]
+                    "    all its conditions hold at this frame, but the run it holds in does not continue the chain"
+                    if r["phases_reached"] > 0 else
+                    "    every condition the scenario file lists holds at this frame, but the phase query's `holds` "
+                    "does not: it tests a condition its [[phases]] `conditions` do not list (list it)"]
             lines += [f"    bridged: {b}" for b in r["bridged"]]
         lines.append("parameters: " + ", ".join(f"{k} = {v}" for k, v in sorted(self.parameters.items())))
         return "\n".join(lines)
@@ -169,6 +203,14 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         progress = con.sql(_PROGRESS.format(score=score)).pl()
         bridged = con.sql(_BRIDGED).pl()
         chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
+        unmatched = con.sql(_UNMATCHED).pl()
+        con.register("_stretches", unmatched)
+        stretch_rows = con.sql("select p.*, u.start_s, u.end_s, u.start_frame, u.end_frame from phase_1 as p "
+                               "join _stretches as u on p.drive_id = u.drive_id and p.ego_id = u.ego_id "
+                               "and p.actor_id = u.actor_id and p.frame between u.start_frame and u.end_frame "
+                               "order by p.frame").pl()
+        con.unregister("_stretches")
+        stretch_rows = stretch_rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
         # the row of each phase's table at the frame it was needed (several rows per frame: the first)
         needed = []
         for k in range(len(s.phases)):
@@ -217,6 +259,29 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
                   pl.col("phase_index").replace_strict(slots, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
+    # per stretch, each condition that is false in it: at how many of its frames, and its value where it first is;
+    # the most frequent first, in the order the scenario lists them
+    stretch = ["ego_id", "actor_id", "start_frame"]
+    false_at = stretch_rows.select(*stretch, "end_frame", "start_s", "end_s", "t_s",
+                                   _failed(0, s, stretch_rows.schema).alias("failed")).explode("failed")
+    false_at = false_at.with_columns(
+        pl.col("failed").fill_null("a condition the scenario file does not list"),
+        frames=pl.col("end_frame") - pl.col("start_frame") + 1)
+    unmatched_text = false_at.group_by(*stretch, "end_frame", "start_s", "end_s", "frames",
+                                       pl.col("failed").str.extract(r"^(\S+)", 1).alias("condition")).agg(
+        pl.len().alias("false_frames"), pl.col("failed").first(), pl.col("t_s").first()
+    ).with_columns(listed=pl.col("condition").replace_strict(
+        [c.name for c in s.phases[0].conditions], list(range(len(s.phases[0].conditions))), default=None)
+    ).sort(*stretch, "false_frames", "listed", descending=[False, False, False, True, False]).group_by(
+        *stretch, "end_frame", "start_s", "end_s", "frames", maintain_order=True).agg(
+        pl.format("{} at {} of {} frames (first at {} s: {})", "condition", "false_frames", "frames",
+                  pl.col("t_s").round(2), "failed").alias("why")
+    ).select(
+        "ego_id", "actor_id",
+        pl.format("not matched from {} s to {} s (frames {}-{}): {} does not hold: {}",
+                  pl.col("start_s").round(2), pl.col("end_s").round(2), "start_frame", "end_frame",
+                  pl.lit(names[0]), pl.col("why").list.join("; ")).alias("text"),
+    ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("unmatched"))
     # the pairs whose needed phase holds at the frame shown only within a run dropped as jitter
     keys = ["ego_id", "actor_id", "phases_reached"]
     pairs = pairs.with_columns(pl.col("phases_reached").cast(pl.Int64))
@@ -228,7 +293,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
     n = len(s.phases)
     open_ = (pl.col("phases_reached") < n) & ~pl.col("matched")
     pairs = pairs.join(bridged_text, on=["ego_id", "actor_id"], how="left").join(
-        chained_text, on=["ego_id", "actor_id"], how="left").select(
+        chained_text, on=["ego_id", "actor_id"], how="left").join(
+        unmatched_text, on=["ego_id", "actor_id"], how="left").select(
         "ego_id", "actor_id", pl.lit(n, pl.Int64).alias("phase_count"), "phases_reached",
         "matched",
         pl.when(open_).then(pl.col("phases_reached").replace_strict(
@@ -240,6 +306,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         pl.col("in_jitter").fill_null(False),
         pl.col("bridged").fill_null(pl.lit([], pl.List(pl.String))),
         pl.col("chained").fill_null(pl.lit([], pl.List(pl.String))),
+        pl.col("unmatched").fill_null(pl.lit([], pl.List(pl.String))),
     )
     return Explanation(pairs.sort(["matched", "phases_reached", "ego_id", "actor_id"],
                                   descending=[True, True, False, False]),

@@ -77,9 +77,10 @@ def drive(actor_id: str, t: np.ndarray, s: np.ndarray, route: str, is_ego: bool 
                          "t_s": t, "x_m": x, "y_m": y, "length_m": 4.5, "width_m": 1.8})
 
 
-def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | None = "green") -> Path:
-    """Ingest the actors on the junction map; ``light`` is the state, at every frame, of the light that governs
-    the left turn from S_in and of the one for N_in's straight movement (None: the map has no lights)."""
+def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | list[str] | None = "green") -> Path:
+    """Ingest the actors on the junction map; ``light`` is the state, at every frame (or frame by frame from 0:
+    a list, its last state held), of the light that governs the left turn from S_in and of the one for N_in's
+    straight movement (None: the map has no lights)."""
     folder = tmp / "parquet"
     folder.mkdir(parents=True, exist_ok=True)
     tracks = pl.concat(actors)
@@ -97,8 +98,10 @@ def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | None = 
                       "direction": ["left", "straight,right"], "x_m": [1.75, -1.75], "y_m": [-10.0, 10.0]}
                      ).write_parquet(folder / "traffic_lights.parquet")
         frames = np.arange(int(round(tracks["t_s"].max() * 10)) + 1)
+        states = light if isinstance(light, str) else np.array(light)[np.minimum(frames, len(light) - 1)]
         pl.DataFrame({"drive_id": "j1", "light_id": np.repeat(["L_left", "L_through"], len(frames)),
-                      "frame": np.tile(frames, 2), "state": light}).write_parquet(
+                      "frame": np.tile(frames, 2), "state": np.tile(states, 2) if len(np.shape(states)) else states}
+                     ).write_parquet(
             folder / "traffic_light_states.parquet")
     path = tmp / "junction.duckdb"
     ingest("parquet", [folder], path)

@@ -10,6 +10,7 @@ import pytest
 
 from logiq_sql.cli import main
 from logiq_sql.errors import ScenarioError
+from logiq_sql.explain import explain
 from logiq_sql.lint import lint_scenarios
 from logiq_sql.match import match
 from logiq_sql.plan import render, resolve_scenarios
@@ -139,3 +140,16 @@ def test_a_users_own_folder_runs_with_the_built_in_bases(tmp_path, capsys):
     assert "ego ego, actor near: 1 of 1 phases -- matched" in capsys.readouterr().out
     with pytest.raises(ScenarioError, match="scenario 'close_follower' not found"):
         load_scenario("close_follower")  # not without the folder
+
+
+def test_explain_names_a_condition_the_scenario_file_does_not_list(tmp_path):
+    """A phase query whose `holds` tests more than the conditions its [[phases]] entry lists: explain says so,
+    instead of blaming a chain that a one-phase scenario does not have."""
+    hidden = OWN_SQL.replace("false) as holds", "false) and r.dx_m < -100 as holds")
+    folder = own_folder(tmp_path, sql=hidden)
+    t = times(5.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("near", t, 85 + 10 * t, Y1)])
+    text = explain(db, "close_follower", "d1", "ego", scenario_path=folder).text()
+    assert "0 of 1 phases; close_follower could not begin" in text
+    assert "does not continue the chain" not in text
+    assert "tests a condition its [[phases]] `conditions` do not list" in text

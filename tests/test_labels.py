@@ -373,10 +373,9 @@ def _offsets(run: Path) -> pl.DataFrame:
             .with_columns(centre_m=pl.col("front_m") - pl.col("length_m") / 2))
 
 
-@needs_fixtures
-def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
-    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == LEFT_TURN)
-    assert labels.height >= 20
+def left_turn_label_rows(labels: pl.DataFrame) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
+    """The junction fixture's FCD offsets (``_offsets``), its ego rows (columns prefixed e_), and each left-turn
+    label with the ego's (e_*) and the actor's (a_*) rows and the signal state string at its start."""
     rows = _offsets(JUNCTION)
     states = xml_records(JUNCTION / "tls_states.xml.gz", "tlsState", ("time", "state"), "</tlsStates>").select(
         t_s=pl.col("time").cast(pl.Float64), state="state")
@@ -385,25 +384,33 @@ def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
     at_start = (labels.join(ego, left_on=["ego_id", "start_s"], right_on=["vehicle_id", "t_s"])
                 .join(actor, left_on=["actor_id", "start_s"], right_on=["vehicle_id", "t_s"])
                 .join(states, left_on="start_s", right_on="t_s"))
+    return rows, ego, at_start
+
+
+@needs_fixtures
+def test_fixture_left_turns_hold_in_sumo_lanes_and_signals(fixture_labels):
+    labels = fixture_labels["junction_s1"].filter(pl.col("scenario") == LEFT_TURN)
+    assert labels.height >= 20
+    rows, ego, at_start = left_turn_label_rows(labels)
     assert at_start.height == labels.height
     # the ego turns left through the signalised junction (its internal lanes are those of a dir="l" connection)
     assert at_start["e_dir"].is_in(["l", "L"]).all() and at_start["e_kind"].eq("vehicle").all()
-    # a vehicle from another incoming edge; both within 10 m of their stop lines, box centre by lane position
+    # a vehicle from another incoming edge; both within 10 m of their stop lines, box front by lane position
     assert at_start["a_kind"].eq("vehicle").all()
     assert (at_start["a_from_edge"] != at_start["e_from_edge"]).all()
     for who in ("e", "a"):
-        assert at_start[f"{who}_centre_m"].is_between(-10 - 1e-6, 10 + 1e-6).all()
+        assert at_start[f"{who}_front_m"].is_between(-10 - 1e-6, 10 + 1e-6).all()
     # the ego is stopped (<= 2 kph) on green: character link_index of SUMO's state string is G or g
     assert (at_start["e_speed_mps"] <= 2 / 3.6 + 1e-9).all()
     signal = at_start.select(pl.col("state").str.slice(pl.col("e_link_index"), 1))["state"]
     assert signal.is_in(["G", "g"]).all()
-    # the interval ends at the ego's last step with its centre inside the junction; it then leaves, after the actor
+    # the interval ends at the ego's last step with its front inside the junction; it then leaves, after the actor
     span = rows.group_by("vehicle_id").agg(first_s=pl.col("t_s").min(), last_s=pl.col("t_s").max())
     at_end = labels.join(ego, left_on=["ego_id", "end_s"], right_on=["vehicle_id", "t_s"])
     after = labels.join(ego, left_on=["ego_id", (pl.col("end_s") + 0.1).round(1)], right_on=["vehicle_id", "t_s"])
     assert at_end.height == after.height == labels.height
-    assert ((at_end["e_centre_m"] >= 0) & (at_end["e_centre_m"] < at_end["e_total_m"])).all()
-    assert (after["e_centre_m"] >= after["e_total_m"]).all()
+    assert ((at_end["e_front_m"] >= 0) & (at_end["e_front_m"] < at_end["e_total_m"])).all()
+    assert (after["e_front_m"] >= after["e_total_m"]).all()
     out = rows.filter(pl.col("front_m") >= pl.col("total_m")).group_by("vehicle_id").agg(out_s=pl.col("t_s").min())
     order = labels.join(out, left_on="ego_id", right_on="vehicle_id").join(
         out, left_on="actor_id", right_on="vehicle_id", suffix="_actor")

@@ -8,6 +8,7 @@ import duckdb
 import numpy as np
 import polars as pl
 
+from logiq_sql.evaluation import lane_offsets
 from logiq_sql.explain import explain
 from logiq_sql.match import match
 from tests.helpers import Y1, Y2, actor, intervals, make_db, times
@@ -51,18 +52,18 @@ def test_the_ego_lane_is_the_lane_of_its_lane_run(tmp_path):
     db = gradual_cut_out(tmp_path)
     match(db, scenarios=[CUT_OUT])
     with duckdb.connect(str(db), read_only=True) as con:
-        lanes = con.sql("select frame, lane_id, best_lane_id, lane_run from ego_lanes order by frame").pl()
-    # the best lane switches at 5.6 s (at 5.5 s the centre is on the line: a tie, the smaller id); the change is
-    # confirmed later (6.4 s) and dated there: the ego's lane and its lane run switch with the best lane
-    assert lanes.filter(pl.col("best_lane_id") == "L2")["frame"].min() == 56
+        lanes = con.sql("select frame, lane_id, lane_run from ego_lanes order by frame").pl()
+    # the lane switches at 5.6 s (at 5.5 s the centre is on the line: a tie, the smaller id); the change is
+    # confirmed later (6.4 s) and dated at the crossing: the lane run switches with the lane
     assert lanes.filter(pl.col("lane_id") == "L2")["frame"].min() == 56
     assert lanes.filter(pl.col("lane_run") == 1)["frame"].min() == 56
 
 
-def test_a_lane_flicker_within_the_tolerance_keeps_the_ego_lane(tmp_path):
+def test_a_lane_flicker_within_the_tolerance_is_no_lane_change(tmp_path):
     """Jitter across the line: the ego's centre wanders 0.4 m over it and back, then returns to the middle of its
-    lane; its best lane flickers, its lane does not, and no lane change is counted (not even one back into its
-    own lane when it is more than the tolerance from the other lane again)."""
+    lane; its lane is the one its centre is in (as every actor's), but no lane change is counted (not even one back
+    into its own lane when it is more than the tolerance from the other lane again), and the follower in its lane
+    keeps following: the lanes of its lane run are its road."""
     t = times(8.0)
     y = np.full(t.shape, 3.3)
     y[20:60:7] = 3.9  # over the line (3.5) for single frames
@@ -70,8 +71,8 @@ def test_a_lane_flicker_within_the_tolerance_keeps_the_ego_lane(tmp_path):
     db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, y, is_ego=True), actor("f", t, 80 + 10 * t, Y1)])
     result = match(db, scenarios=["follower_vehicle"])
     with duckdb.connect(str(db), read_only=True) as con:
-        lanes = con.sql("select lane_id, best_lane_id, lane_run from ego_lanes").pl()
-    assert set(lanes["best_lane_id"]) == {"L1", "L2"} and set(lanes["lane_id"]) == {"L1"}
+        lanes = con.sql("select lane_id, lane_run from ego_lanes").pl()
+    assert set(lanes["lane_id"]) == {"L1", "L2"}
     assert lanes["lane_run"].max() == 0
     assert intervals(result.matches, "follower_vehicle") == [("ego", "f", 0.0, 8.0)]
 
@@ -127,3 +128,19 @@ def test_ttc_needs_a_closing_speed_above_the_threshold(tmp_path):
                                        actor("f", t, 80 + 11 * t, Y1)])
     (kpi,) = match(fast, scenarios=["follower_vehicle"]).kpis.iter_rows(named=True)
     assert abs(kpi["ego_min_ttc_to_vehicle_s"] - 12.5) < 0.05  # 12.5 m gap at the end, 1 m/s
+
+
+def test_lane_offsets_reads_a_cut_in_against_the_lane_map(tmp_path):
+    """evaluation.lane_offsets (the by-eye check of real drives): on the cut-in above, the ego keeps the centre of
+    its lane (L1, offset 0) while the actor comes from the centre of the lane on its left (+3.5 m) onto it."""
+    t = times(10.0)
+    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True),
+                            actor("npc", t, 120 + 10 * t, ramp(t, 3.0, Y2, Y1, 3.0))])
+    match(db, scenarios=[CUT_IN])
+    lines = lane_offsets.report(str(db), CUT_IN, n=12, seed=36).splitlines()
+    assert lines[0] == ("=== d1 ego ego actor npc 1.4-7.5 s: actor_beside_ahead 1.4-4.4, "
+                        "actor_in_ego_lane_ahead 4.5-7.5")
+    rows = [line.split() for line in lines[1:]]
+    assert rows[0] == ["1.0", "s", "ego", "0.0", "m", "actor", "3.5", "m", "actor", "ahead", "20.0", "m"]
+    assert rows[-1][2:8] == ["ego", "0.0", "m", "actor", "0.0", "m"]
+    assert sum(row[0] == "*" for row in rows) == 13  # 1.5 .. 7.5 s every 0.5 s, inside the match

@@ -103,9 +103,10 @@ def test_follower_on_the_previous_road_segment_counts_as_same_lane(tmp_path):
                      successors=[dict(map_id="road", lane_id="A", successor_id="B", turn=None)])
     assert run(linked, FOLLOWER) == [("ego", "f", 0.0, 5.0)]
     # without the map link the ego never drove on A in this drive, so the follower is on the ego's road only
-    # once it is on B: from t = 3.1 (at t = 3.0 it sits on the boundary and A wins the tie by id)
+    # once it is on B: from t = 3.0 (it sits on the boundary: its best lane is A by id, but its centre is inside
+    # the ego's lane B as well, and a centre inside both of two lanes is in either)
     unlinked = make_db(tmp_path / "unlinked", [ego, fol], lanes)
-    assert run(unlinked, FOLLOWER) == [("ego", "f", 3.1, 5.0)]
+    assert run(unlinked, FOLLOWER) == [("ego", "f", 3.0, 5.0)]
 
 
 def test_same_road_limit_uses_the_lanes_the_ego_drove_in(tmp_path):

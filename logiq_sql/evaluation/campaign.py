@@ -22,6 +22,8 @@ from pathlib import Path
 
 import polars as pl
 
+from logiq_sql.evaluation.conflict_labels import SCENARIO as LEFT_TURN
+from logiq_sql.evaluation.conflict_labels import label_conflicts
 from logiq_sql.evaluation.evaluate import evaluate
 from logiq_sql.evaluation.labels import SCENARIOS, label_sumo
 from logiq_sql.evaluation.perceive import Noise, perceive
@@ -49,6 +51,14 @@ REGIMES = {
     "junction_2lane": Setup("junction", Regime(approach_lanes=2, demand=0.8), 8, 2),
     "junction_3lane": Setup("junction", Regime(approach_lanes=3), 8, 2),
     "junction_4lane": Setup("junction", Regime(approach_lanes=4, demand=1.3), 8, 2),
+    # issue 36: junctions nobody here tuned to (arms off the perpendicular, other cycles and speeds, exits that
+    # back up, a shared straight+left lane, buses and motorcycles among the SUTs)
+    "junction_skew15_cycle60": Setup("junction", Regime(skew_deg=15, cycle_s=60), 8, 2),
+    "junction_skew30_cycle120": Setup("junction", Regime(skew_deg=30, cycle_s=120, demand=1.2), 8, 2),
+    "junction_exit_backup": Setup("junction", Regime(exit_backup=True, demand=1.2), 8, 2),
+    "junction_2lane_shared_40kmh": Setup("junction", Regime(approach_lanes=2, speed_kmh=40, cycle_s=75), 8, 2),
+    "junction_60kmh_bus_moto": Setup("junction", Regime(speed_kmh=60, bus_share=0.15, motorcycle_share=0.15,
+                                                        skew_deg=10), 8, 2),
 }
 # the issue's perception-like noise, and the levels of the sweep (one dimension at a time)
 PERCEPTION = Noise(position_m=0.2, heading_deg=1.0, speed_mps=0.1, drop_share=0.02)
@@ -56,16 +66,28 @@ NOISE = {"exact": Noise(), "perception": PERCEPTION}
 SWEEP = {"position_0.1m": Noise(position_m=0.1), "position_0.2m": Noise(position_m=0.2),
          "position_0.4m": Noise(position_m=0.4), "drop_2pct": Noise(drop_share=0.02),
          "drop_5pct": Noise(drop_share=0.05)}
-MOTOR_KINDS = ("vehicle", "truck", "bus")
+MOTOR_KINDS = ("vehicle", "truck", "bus", "motorcycle")
 
 
 def egos(run: Path, car_every: int) -> list[str]:
-    """Every truck and bus of the run and every ``car_every``-th car by id (from the FCD ids and vTypes)."""
+    """Every truck, bus and motorcycle of the run and every ``car_every``-th car by id (from the FCD ids and
+    vTypes)."""
     ids = (read_fcd(next(run.glob("fcd*")), ("vehicle_id", "type_id")).select("vehicle_id", "type_id").unique()
            .join(read_vtypes(run).select("type_id", "kind"), on="type_id").filter(pl.col("kind").is_in(MOTOR_KINDS))
            .sort("vehicle_id"))
     cars = ids.filter(pl.col("kind") == "vehicle").gather_every(car_every)
     return sorted(cars["vehicle_id"].to_list() + ids.filter(pl.col("kind") != "vehicle")["vehicle_id"].to_list())
+
+
+# the left turn scored against conflict_labels.py's labels: a row of its own in the score tables
+CONFLICT_SCENARIO = f"{LEFT_TURN} (conflict labels)"
+
+
+def conflict_scores(db: Path, labels: Path, out: Path) -> pl.DataFrame:
+    """The left turn's scores against the conflict labeller's labels (the other scenarios, which it does not
+    label, are left out), named CONFLICT_SCENARIO."""
+    scores = evaluate(db, labels, out=out).scores
+    return scores.filter(pl.col("scenario") == LEFT_TURN).with_columns(scenario=pl.lit(CONFLICT_SCENARIO))
 
 
 def _simulated(setup: Setup, seed: int, run: Path) -> Path:
@@ -85,6 +107,9 @@ def score_drive(out: Path, name: str, setup: Setup, seed: int, noises: dict[str,
     labels_path.parent.mkdir(parents=True, exist_ok=True)
     labels = label_sumo(run)
     labels.write_parquet(labels_path)
+    # the left turn's second ground truth (conflict_labels.py), scored as a scenario of its own name
+    conflict_path = out / "labels" / f"{run.name}_conflict.parquet"
+    label_conflicts(run).write_parquet(conflict_path)
     ego_ids = egos(run, setup.car_every)
     rows = []
     for level, noise in noises.items():
@@ -97,6 +122,7 @@ def score_drive(out: Path, name: str, setup: Setup, seed: int, noises: dict[str,
         ingest("sumo", [copy], db)
         match(db, scenarios=list(SCENARIOS), ego=",".join(ego_ids))
         scores = evaluate(db, labels_path, out=out / "eval" / f"{run.name}_{level}").scores
+        scores = pl.concat([scores, conflict_scores(db, conflict_path, out / "eval" / f"{run.name}_{level}_conflict")])
         rows.append(scores.select(pl.lit(name).alias("regime"), pl.lit(seed).alias("seed"),
                                   pl.lit(level).alias("noise"), pl.all()))
         say(f"{run.name} {level}: {len(ego_ids)} egos, {time.perf_counter() - started:.0f} s")

@@ -499,7 +499,7 @@ def _on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame)
     link and front_m / centre_m: the front's (centre's) offset from the junction start along the path.
 
     A vehicle's link is that of the first internal lane of a signalised path it was on. The front is SUMO's
-    lane position; the centre is front - length / 2 (the box centre, as the matcher uses).
+    lane position (the point the junction offsets measure, docs/semantics.md); the centre is front - length / 2.
     """
     internal = path_lanes.filter(pl.col("lane_length_m").is_not_null())
     first = (rows.join(internal.select("lane_id", "link"), on="lane_id")
@@ -527,17 +527,17 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
         return pl.DataFrame(schema=out_schema)
     paths = _on_paths(rows, links, path_lanes)
     lo, hi = p["min_offset_from_junction_start"] - EPS, p["max_offset_from_junction_start"] + EPS
-    near = pl.col("centre_m").is_between(lo, hi)
+    near = pl.col("front_m").is_between(lo, hi)
     light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
              .unique(["tl", "frame"], keep="last").sort("frame"))
+    # the ego's frames near its junction start on green (stopped or not: it stops, then gives the right of way)
     stops = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT) & near
-                          & (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS)
-                          & (pl.col("centre_m") >= -p["max_offset_from_traffic_light"] - EPS)
-                          & (pl.col("centre_m") < pl.col("total_m")))
+                          & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS)
+                          & (pl.col("front_m") < pl.col("total_m")))
              .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
              .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(_GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
-                     width_m="width_m"))
+                     width_m="width_m", stopped=pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS))
     foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
         actor_id="vehicle_id", frame="frame", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
         length_m_f="length_m")
@@ -558,23 +558,47 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
     inside = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT))
               .group_by(ego_id="vehicle_id")
-              .agg(end_s=pl.col("t_s").filter((pl.col("centre_m") >= -EPS)
-                                              & (pl.col("centre_m") < pl.col("total_m"))).max(),
-                   exited=(pl.col("centre_m") >= pl.col("total_m")).any()))
+              .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
+                                              & (pl.col("front_m") < pl.col("total_m"))).max(),
+                   exited=(pl.col("front_m") >= pl.col("total_m")).any()))
     waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
                        & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
-    # the ego waits until the actor is in the junction: the actor's centre is past its junction start within
-    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor)
+    # the ego waits until the actor is in the junction: the actor's front is past its junction start within
+    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor); the run
+    # counts from the ego's first stop in it (it stops, then may pull forward while it gives way)
     keys = ["ego_id", "actor_id", "link", "link_f"]
-    runs = _islands(waiting, keys, _gap_frames(p, dt))
+    runs = (waiting.with_columns(island=_island(keys, _gap_frames(p, dt)))
+            .group_by(*keys, "island")
+            .agg(start_frame=pl.col("frame").filter("stopped").min(), end_frame=pl.col("frame").max(),
+                 start_s=pl.col("t_s").filter("stopped").min())
+            .drop_nulls("start_frame"))
     entered = (runs.select(*keys, "island", "start_frame", "end_frame")
-               .join(paths.select(actor_id="vehicle_id", frame="frame", centre_m_f="centre_m"), on="actor_id")
+               .join(paths.select(actor_id="vehicle_id", frame="frame", front_m_f="front_m"), on="actor_id")
                .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
-                       & (pl.col("centre_m_f") >= -EPS))
+                       & (pl.col("front_m_f") >= -EPS))
                .select(*keys, "island").unique())
+    # the turn follows the crossing: E sets off (the step after its last stop before its box reaches the
+    # conflict) at the latest max_gap after A's front is max_offset_from_junction_end past its junction end
+    stood = paths.filter(pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS).select(
+        ego_id="vehicle_id", stop_frame="frame")
+    set_off = (waiting.select(*keys, "ego_in_frame").unique().join(stood, on="ego_id")
+               .filter(pl.col("stop_frame") < pl.col("ego_in_frame"))
+               .group_by(keys).agg(set_off=pl.col("stop_frame").max() + 1))
+    crossed = (paths.filter(pl.col("front_m") <= pl.col("total_m") + p["max_offset_from_junction_end"] + EPS)
+               .group_by(actor_id="vehicle_id").agg(crossed_frame=pl.col("frame").max()))
+    # ... or A is the last actor to leave E's path before E sets off, or left it at most max_gap before that one
+    # (phase 3 lasts until the set-off then)
+    outs = waiting.select(*keys, "actor_out_frame").unique().join(set_off, on=keys)
+    last = (outs.filter(pl.col("actor_out_frame") <= pl.col("set_off")).group_by("ego_id")
+            .agg(last_out=pl.col("actor_out_frame").max()))
+    turns = (set_off.join(crossed, on="actor_id")
+             .join(outs.select(*keys, "actor_out_frame"), on=keys).join(last, on="ego_id", how="left")
+             .filter((pl.col("set_off") <= pl.col("crossed_frame") + 1 + _gap_frames(p, dt))
+                     | (pl.col("actor_out_frame") >= pl.col("last_out") - _gap_frames(p, dt)))
+             .select(keys))
     return (
-        runs.join(entered, on=[*keys, "island"])
+        runs.join(entered, on=[*keys, "island"]).join(turns, on=keys)
         .group_by(keys).agg(start_s=pl.col("start_s").min())
         .join(inside.filter("exited"), on="ego_id")
         .filter(pl.col("end_s") >= pl.col("start_s") - EPS)

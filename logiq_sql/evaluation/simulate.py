@@ -13,6 +13,7 @@ package (``sumo.SUMO_HOME/bin``), never on PATH.
 
 from __future__ import annotations
 
+import math
 import shlex
 import subprocess
 import time
@@ -116,8 +117,14 @@ APPROACH_LANES = (2, 3, 4)
 ARM_M = 300.0
 
 
-def _junction(out: Path, approach_lanes: int) -> list[str]:
-    """A signalised 4-way junction C: 300 m arms at 50 km/h (sumo.md 2b). ``approach_lanes`` sets its size:
+BACKUP_M = 50.0  # an exit that backs up narrows to one slow lane this far from the junction
+
+
+def _junction(out: Path, regime: "Regime") -> list[str]:
+    """A signalised 4-way junction C: 300 m arms at ``regime.speed_kmh`` (50 km/h: sumo.md 2b), the north and
+    south arms turned ``regime.skew_deg`` clockwise off the perpendicular, a fixed plan of ``regime.cycle_s``;
+    with ``regime.exit_backup`` each exit narrows after ``BACKUP_M`` to one lane at ``EXIT_BACKUP_MPS``, so the
+    exits back up in bursts and left-turners queue inside the junction. ``regime.approach_lanes`` sets its size:
 
     - 2: lane 0 right + straight, lane 1 straight + left (left-turners wait in the through lane); exits of 2;
     - 3: lane 0 right + straight, lane 1 straight, lane 2 a dedicated left; exits of 2;
@@ -125,15 +132,24 @@ def _junction(out: Path, approach_lanes: int) -> list[str]:
       left-turners wait farther inside it).
 
     Left turns get a permissive green ``g`` (they yield to oncoming traffic)."""
+    approach_lanes = regime.approach_lanes
     arms = list(_ARMS)
     exits = 3 if approach_lanes == 4 else 2
-    nodes = ['<node id="C" x="0" y="0" type="traffic_light"/>'] + [
-        f'<node id="{a}" x="{x * ARM_M:g}" y="{y * ARM_M:g}" type="priority"/>' for a, (x, y) in _ARMS.items()]
+    speed = regime.speed_kmh / 3.6
+    nodes = ['<node id="C" x="0" y="0" type="traffic_light"/>']
+    for a, (x, y) in _arm_directions(regime.skew_deg).items():
+        nodes.append(f'<node id="{a}" x="{x * ARM_M:.2f}" y="{y * ARM_M:.2f}" type="priority"/>')
+        if regime.exit_backup:
+            nodes.append(f'<node id="{a}x" x="{x * BACKUP_M:.2f}" y="{y * BACKUP_M:.2f}" type="priority"/>')
     edges, cons = [], []
     left_lane = approach_lanes - 1
     for i, a in enumerate(arms):
-        edges.append(f'<edge id="{a}2C" from="{a}" to="C" numLanes="{approach_lanes}" speed="13.89"/>')
-        edges.append(f'<edge id="C2{a}" from="C" to="{a}" numLanes="{exits}" speed="13.89"/>')
+        edges.append(f'<edge id="{a}2C" from="{a}" to="C" numLanes="{approach_lanes}" speed="{speed:.2f}"/>')
+        if regime.exit_backup:
+            edges.append(f'<edge id="C2{a}" from="C" to="{a}x" numLanes="{exits}" speed="{speed:.2f}"/>')
+            edges.append(f'<edge id="{a}x2{a}" from="{a}x" to="{a}" numLanes="1" speed="{EXIT_BACKUP_MPS:g}"/>')
+        else:
+            edges.append(f'<edge id="C2{a}" from="C" to="{a}" numLanes="{exits}" speed="{speed:.2f}"/>')
         # arriving from arm a (clockwise order N, E, S, W): right is the next arm anticlockwise
         straight, right, left = arms[(i + 2) % 4], arms[(i + 3) % 4], arms[(i + 1) % 4]
         cons += [(a, 0, right, 0), (a, 0, straight, 0)]
@@ -143,7 +159,21 @@ def _junction(out: Path, approach_lanes: int) -> list[str]:
     _xml(out / "network.edg.xml", "edges", edges)
     _xml(out / "network.con.xml", "connections", [
         f'<connection from="{a}2C" to="C2{b}" fromLane="{fl}" toLane="{tl}"/>' for a, fl, b, tl in cons])
-    return ["--tls.layout", "opposites", "--tls.left-green.time", "0", "--tls.cycle.time", "90"]
+    return ["--tls.layout", "opposites", "--tls.left-green.time", "0", "--tls.cycle.time", f"{regime.cycle_s:g}"]
+
+
+EXIT_BACKUP_MPS = 2.5  # the slow lane of an exit that backs up: about 800 veh/h at SUMO's default gaps
+
+
+def _arm_directions(skew_deg: float) -> dict[str, tuple[float, float]]:
+    """Unit directions of the arms: east and west as ``_ARMS``, north and south turned ``skew_deg`` clockwise."""
+    a = math.radians(skew_deg)
+    return {"N": (math.sin(a), math.cos(a)), "E": (1.0, 0.0), "S": (-math.sin(a), -math.cos(a)), "W": (-1.0, 0.0)}
+
+
+def _exit_edge(regime: "Regime", arm: str) -> str:
+    """The last edge of the exit towards ``arm`` (where a route ends)."""
+    return f"{arm}x2{arm}" if regime.exit_backup else f"C2{arm}"
 
 
 # ------------------------------------------------------------------------------------------------------ demand
@@ -164,6 +194,11 @@ class Regime:
     approach_lanes: lanes of each junction approach (2, 3 or 4); the junction only.
     demand: a factor on every flow (1 = the volumes of docs/sumo.md).
     creep: left-turners stop at the line and creep into the junction (below 3 m/s) to their waiting position.
+    motorcycle_share: share of the motor vehicles that are motorcycles (vClass motorcycle); the junction only.
+    skew_deg: the junction's north and south arms turned this far (0-45 degrees) off the perpendicular.
+    cycle_s: the junction's signal cycle in seconds (30-180).
+    speed_kmh: the junction arms' speed limit (20-80 km/h).
+    exit_backup: the junction's exits narrow to one slow lane 50 m on, so they back up into the junction.
     """
 
     lane_change_duration_s: float = 3.0
@@ -172,14 +207,27 @@ class Regime:
     approach_lanes: int = 3
     demand: float = 1.0
     creep: bool = True
+    motorcycle_share: float = 0.0
+    skew_deg: float = 0.0
+    cycle_s: float = 90.0
+    speed_kmh: float = 50.0
+    exit_backup: bool = False
 
     def __post_init__(self) -> None:
         if not self.lane_change_duration_s >= 0:
             raise LogiqError(f"--lane-change-duration {self.lane_change_duration_s}: give seconds >= 0 (0 = SUMO's "
                              "instantaneous lane change).")
-        if not (0 <= self.truck_share and 0 <= self.bus_share and self.truck_share + self.bus_share <= 0.9):
-            raise LogiqError(f"--truck-share {self.truck_share:g} and --bus-share {self.bus_share:g}: give shares "
-                             ">= 0 whose sum is at most 0.9 (the rest are cars).")
+        if not (0 <= self.truck_share and 0 <= self.bus_share and 0 <= self.motorcycle_share
+                and self.truck_share + self.bus_share + self.motorcycle_share <= 0.9):
+            raise LogiqError(f"--truck-share {self.truck_share:g}, --bus-share {self.bus_share:g} and "
+                             f"--motorcycle-share {self.motorcycle_share:g}: give shares >= 0 whose sum is at most "
+                             "0.9 (the rest are cars).")
+        if not 0 <= self.skew_deg <= 45:
+            raise LogiqError(f"--skew {self.skew_deg:g}: give degrees in [0, 45] off the perpendicular.")
+        if not 30 <= self.cycle_s <= 180:
+            raise LogiqError(f"--cycle {self.cycle_s:g}: give a signal cycle in [30, 180] seconds.")
+        if not 20 <= self.speed_kmh <= 80:
+            raise LogiqError(f"--speed {self.speed_kmh:g}: give the junction's speed limit in [20, 80] km/h.")
         if self.approach_lanes not in APPROACH_LANES:
             raise LogiqError(f"--approach-lanes {self.approach_lanes}: choose one of "
                              f"{', '.join(map(str, APPROACH_LANES))}.")
@@ -189,8 +237,11 @@ class Regime:
     def describe(self) -> str:
         change = (f"{self.lane_change_duration_s:g} s lane changes" if self.lane_change_duration_s
                   else "instantaneous lane changes")
-        return (f"{change}, {self.truck_share * 100:g} % trucks, {self.bus_share * 100:g} % buses, demand x"
+        text = (f"{change}, {self.truck_share * 100:g} % trucks, {self.bus_share * 100:g} % buses, demand x"
                 f"{self.demand:g}")
+        if self.motorcycle_share:
+            text += f", {self.motorcycle_share * 100:g} % motorcycles"
+        return text
 
 
 def _flow(fid: str, vtype: str, src: str, dst: str, veh_per_h: float, end_s: float) -> str:
@@ -200,15 +251,19 @@ def _flow(fid: str, vtype: str, src: str, dst: str, veh_per_h: float, end_s: flo
 
 
 def _vehicle_mix(regime: Regime, name: str, cars: list[tuple[str, str, float]], truck: str, bus: str,
-                 suffix: str = "") -> list[str]:
-    """A vTypeDistribution ``name``: the car types share 1 - trucks - buses in their given proportions."""
-    car_share = 1.0 - regime.truck_share - regime.bus_share
+                 suffix: str = "", motorcycle: str = "") -> list[str]:
+    """A vTypeDistribution ``name``: the car types share 1 - trucks - buses (- motorcycles, where ``motorcycle``
+    is given) in their given proportions."""
+    moto_share = regime.motorcycle_share if motorcycle else 0.0
+    car_share = 1.0 - regime.truck_share - regime.bus_share - moto_share
     total = sum(p for _, _, p in cars)
     members = [f'    <vType id="{tid}" {attrs} probability="{car_share * p / total:.4f}"/>' for tid, attrs, p in cars]
     if regime.truck_share:
         members.append(f'    <vType id="truck{suffix}" {truck} probability="{regime.truck_share:.4f}"/>')
     if regime.bus_share:
         members.append(f'    <vType id="bus{suffix}" {bus} probability="{regime.bus_share:.4f}"/>')
+    if moto_share:
+        members.append(f'    <vType id="motorcycle{suffix}" {motorcycle} probability="{moto_share:.4f}"/>')
     return [f'<vTypeDistribution id="{name}">', *members, "</vTypeDistribution>"]
 
 
@@ -238,10 +293,12 @@ def _junction_routes(end_s: float, regime: Regime) -> list[str]:
     car = 'vClass="passenger" length="4.6" width="1.8" speedFactor="normc(1,0.1,0.8,1.2)"'
     truck = 'vClass="truck" length="12" width="2.5" maxSpeed="22" speedFactor="normc(1,0.05,0.9,1.1)"'
     bus = 'vClass="bus" length="12" width="2.55" maxSpeed="22" speedFactor="normc(1,0.05,0.9,1.1)"'
-    types = _vehicle_mix(regime, "mix", [("car", car, 1.0)], truck, bus)
+    moto = 'vClass="motorcycle" length="2.2" width="0.9" speedFactor="normc(1,0.1,0.8,1.2)"'
+    types = _vehicle_mix(regime, "mix", [("car", car, 1.0)], truck, bus, motorcycle=moto)
     # left-turners of their own types: with ``creep`` they start gently from the line
     slow = f" {CREEP}" if regime.creep else ""
-    types += _vehicle_mix(regime, "left_mix", [("left_car", car + slow, 1.0)], truck + slow, bus + slow, suffix="_left")
+    types += _vehicle_mix(regime, "left_mix", [("left_car", car + slow, 1.0)], truck + slow, bus + slow,
+                          suffix="_left", motorcycle=moto + slow)
     types.append('<vType id="bike" vClass="bicycle" length="1.6" width="0.65" maxSpeed="6" '
                  'speedFactor="normc(1,0.1,0.7,1.3)"/>')
     arms = list(_ARMS)
@@ -250,8 +307,9 @@ def _junction_routes(end_s: float, regime: Regime) -> list[str]:
         for turn, b, cars, bikes in (("straight", arms[(i + 2) % 4], 250, 45), ("left", arms[(i + 1) % 4], 100, 15),
                                      ("right", arms[(i + 3) % 4], 100, 15)):
             mix = "left_mix" if turn == "left" else "mix"
-            flows.append(_flow(f"car_{a}_{turn}", mix, f"{a}2C", f"C2{b}", cars * regime.demand, end_s))
-            flows.append(_flow(f"bike_{a}_{turn}", "bike", f"{a}2C", f"C2{b}", bikes * regime.demand, end_s))
+            to = _exit_edge(regime, b)
+            flows.append(_flow(f"car_{a}_{turn}", mix, f"{a}2C", to, cars * regime.demand, end_s))
+            flows.append(_flow(f"bike_{a}_{turn}", "bike", f"{a}2C", to, bikes * regime.demand, end_s))
     return types + flows
 
 
@@ -274,7 +332,7 @@ def simulate(kind: str, minutes: float, seed: int, out: str | Path, regime: Regi
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     end_s = round(minutes * 60, 1)
-    net_options = _motorway(out) if kind == "motorway" else _junction(out, regime.approach_lanes)
+    net_options = _motorway(out) if kind == "motorway" else _junction(out, regime)
     routes = _motorway_routes(end_s, regime) if kind == "motorway" else _junction_routes(end_s, regime)
     _xml(out / "routes.rou.xml", "routes", routes)
     netconvert = ["netconvert", "--node-files", "network.nod.xml", "--edge-files", "network.edg.xml",
@@ -318,6 +376,17 @@ def command_options(kind: str, minutes: float, seed: int, regime: Regime) -> str
             f"--truck-share {regime.truck_share:g} --bus-share {regime.bus_share:g} --demand {regime.demand:g}")
     if kind == "junction":
         text += f" --approach-lanes {regime.approach_lanes}" + ("" if regime.creep else " --no-creep")
+        # the options added for issue 36, spelt out only where they differ from the default (older runs' command
+        # lines stay as they were)
+        default = Regime()
+        for flag, value, was in (("--motorcycle-share", regime.motorcycle_share, default.motorcycle_share),
+                                 ("--skew", regime.skew_deg, default.skew_deg),
+                                 ("--cycle", regime.cycle_s, default.cycle_s),
+                                 ("--speed", regime.speed_kmh, default.speed_kmh)):
+            if value != was:
+                text += f" {flag} {value:g}"
+        if regime.exit_backup:
+            text += " --exit-backup"
     return text
 
 
@@ -326,9 +395,14 @@ def _source_md(kind: str, options: str, minutes: float, seed: int, version: str,
         "motorway": "a 3.5 km, 3-lane motorway at 120 km/h with an on-ramp (300 m acceleration lane) and an "
                     "off-ramp (200 m deceleration lane); about 4760 veh/h (times the demand factor) of normal and "
                     "aggressive cars (tau 0.5 s, minGap 1 m, lcAssertive 4), trucks (16.5 m) and coaches (13.5 m)",
-        "junction": f"a signalised 4-way junction, 300 m arms at 50 km/h, approaches of {regime.approach_lanes} "
-                    "lanes, a 90 s two-phase plan where left turns get a permissive green `g` and yield to oncoming "
-                    "traffic; 1800 motor vehicles/h and 300 bicycles/h (times the demand factor) sharing the lanes"
+        "junction": f"a signalised 4-way junction, 300 m arms at {regime.speed_kmh:g} km/h"
+                    + (f", the north and south arms {regime.skew_deg:g} degrees off the perpendicular"
+                       if regime.skew_deg else "")
+                    + f", approaches of {regime.approach_lanes} lanes, a {regime.cycle_s:g} s two-phase plan where "
+                    "left turns get a permissive green `g` and yield to oncoming traffic"
+                    + (f"; every exit narrows to one lane at {EXIT_BACKUP_MPS:g} m/s {BACKUP_M:g} m on, so it "
+                       "backs up into the junction" if regime.exit_backup else "")
+                    + "; 1800 motor vehicles/h and 300 bicycles/h (times the demand factor) sharing the lanes"
                     + ("; left-turners start gently from the line and creep to their waiting position"
                        if regime.creep else ""),
     }[kind]

@@ -11,7 +11,7 @@
 -- own path, so offsets from a junction's start and end are differences of s_m (the junction scenarios need
 -- no other actors). Each step is the displacement projected on the actor's heading, so position jitter (a
 -- perception stack's 0.2 m) cancels out instead of adding up: the length of jittery steps would make a car
--- waiting at the line travel metres.
+-- waiting at the line travel metres. length_m (the box length) lets junction_frames measure from the front.
 with
 
 actors as (
@@ -27,6 +27,7 @@ steps as (
         t.frame,
         t.t_s,
         t.heading_rad,
+        t.length_m,
         (t.x_m - lag(t.x_m) over w) * cos(t.heading_rad) + (t.y_m - lag(t.y_m) over w) * sin(t.heading_rad)
             as step_m
     from tracks as t
@@ -42,6 +43,7 @@ path as (
         frame,
         t_s,
         heading_rad,
+        length_m,
         coalesce(sum(step_m) over (
             partition by drive_id, actor_id order by frame rows between unbounded preceding and current row
         ), 0.0) as s_m,

@@ -4,11 +4,12 @@
 -- params: none
 --
 -- Offsets are along the actor's own path (actor_paths.s_m), as the spec defines them: negative behind, positive
--- after.
---   offset_from_junction_start_m  s - entry s: < 0 before the junction, >= 0 once inside; NULL when the entry
---                                 was not observed (the track starts inside)
---   offset_from_junction_end_m    s - exit s: <= 0 until the actor leaves, > 0 after; NULL when the exit was not
---                                 observed (the track ends inside)
+-- after, and measured at the box's front (its centre's offset plus half its length): a driver stops with the
+-- front at the stop line, and the spec's "distance from an actor to the junction start" is the gap ahead of it.
+--   offset_from_junction_start_m  front s - entry s: < 0 before the front reaches the junction, >= 0 after;
+--                                 NULL when the entry was not observed (the track starts inside)
+--   offset_from_junction_end_m    front s - exit s: <= 0 until the front leaves, > 0 after; NULL when the exit
+--                                 was not observed (the track ends inside)
 --   in_junction                   the frame lies within the passage (entry frame to exit frame)
 -- Frames are kept from 30 m of path before the entry to 30 m after the exit (longer than every offset
 -- parameter's default); an actor between two junctions has a row for each.
@@ -20,8 +21,8 @@ select
     p.frame,
     p.t_s,
     p.s_m,
-    case when j.entry_observed then p.s_m - j.entry_s_m end as offset_from_junction_start_m,
-    case when j.exit_observed then p.s_m - j.exit_s_m end as offset_from_junction_end_m,
+    case when j.entry_observed then p.s_m + p.length_m / 2 - j.entry_s_m end as offset_from_junction_start_m,
+    case when j.exit_observed then p.s_m + p.length_m / 2 - j.exit_s_m end as offset_from_junction_end_m,
     p.frame between j.entry_frame and j.exit_frame as in_junction
 from actor_paths as p
 inner join passages as j

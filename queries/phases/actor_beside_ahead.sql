@@ -1,7 +1,7 @@
 -- phase: actor_beside_ahead (cut_in_ahead_of_ego, phase 1; logiq_sql's own scenario, not a LogIQ page)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations
+-- reads: relations, ego_lanes, drive_inputs, lane_line (joined and windowed on the integer keys)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -10,27 +10,64 @@
 --   actor_beside       the actor's lane is beside the ego's lane (adjacent_side, from lane_neighbours)
 --   headway_in_range   time headway (gap / ego speed) in [min_distance_from_sut_in_time_units,
 --                      max_distance_from_sut_in_time_units]
+--   ego_keeps_lane     the actor comes into the ego's lane, not the ego into the actor's: at the next frame at
+--                      which the actor is ahead in the ego's lane (same_lane), the ego is in the same lane run and
+--                      in the lane it has now or one that continues it (lane_line). An ego that drifts over the
+--                      line towards the actor, without a counted lane change, does not make the actor cut in.
+--                      True when the actor is not in the ego's lane again later
 -- segment = the ego's lane run: the ego keeps its lane while the actor cuts in.
+with
+
+ahead as (
+    select
+        r.*,
+        r.ego_lane_id as ego_lane_now_id,
+        -- the first frame from this one on at which the actor is ahead in the ego's lane (a running min read
+        -- backwards, up to the current row: a frame that ends at 1 preceding does not run on Polars). At the
+        -- phase's frames the actor is beside, not in the lane, so it is the next one
+        min(case when r.same_lane then r.frame end) over (
+            partition by r.drive_key, r.ego_key, r.actor_key order by r.frame desc
+            rows between unbounded preceding and current row
+        ) as entry_frame
+    from relations as r
+    where r.dx_m > 0
+),
+
+checked as (
+    select
+        a.*,
+        a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane
+    from ahead as a
+    inner join drive_inputs as d
+        on a.drive_key = d.drive_key
+    left join ego_lanes as entry
+        on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
+    left join lane_line as line
+        on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
+)
+
 select
-    r.drive_id,
-    r.ego_id,
-    r.actor_id,
-    r.frame,
-    r.t_s,
-    r.lane_run as segment,
-    instr($kinds_csv, ',' || r.actor_kind || ',') > 0 as actor_kind_ok,
-    r.lon_gap_m > 0 as actor_ahead,
-    r.adjacent_side is not null as actor_beside,
-    coalesce(r.time_headway_s >= $min_distance_from_sut_in_time_units_s
-        and r.time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
-    instr($kinds_csv, ',' || r.actor_kind || ',') > 0 and r.lon_gap_m > 0 and r.adjacent_side is not null
-        and coalesce(r.time_headway_s >= $min_distance_from_sut_in_time_units_s
-            and r.time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as holds,
-    r.actor_kind,
-    r.lon_gap_m,
-    r.adjacent_side,
-    r.time_headway_s,
-    r.ego_lane_id,
-    r.actor_lane_id
-from relations as r
-where r.dx_m > 0
+    drive_id,
+    ego_id,
+    actor_id,
+    frame,
+    t_s,
+    lane_run as segment,
+    instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
+    lon_gap_m > 0 as actor_ahead,
+    adjacent_side is not null as actor_beside,
+    coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
+        and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
+    ego_keeps_lane,
+    instr($kinds_csv, ',' || actor_kind || ',') > 0 and lon_gap_m > 0 and adjacent_side is not null
+        and coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
+            and time_headway_s <= $max_distance_from_sut_in_time_units_s, false)
+        and ego_keeps_lane as holds,
+    actor_kind,
+    lon_gap_m,
+    adjacent_side,
+    time_headway_s,
+    ego_lane_now_id as ego_lane_id,
+    actor_lane_id,
+    entry_frame
+from checked

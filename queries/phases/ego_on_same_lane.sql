@@ -7,14 +7,18 @@
 -- Conditions (holds = all of them):
 --   actor_kind_ok        the actor is of one of the kinds
 --   actor_ahead          entirely ahead of the ego's front bumper (dx > 0 and lon_gap > 0)
---   actor_in_ego_lane    the actor's lane is the ego's lane or its direct successor/predecessor (same_lane). The
---                        ego's lane is the lane of its lane run (ego_lanes): while the ego drifts over the line
---                        it is still the old lane, up to the frame before its lane change is counted. Not the
+--   actor_in_ego_lane    the actor's lane is the ego's lane or one that continues it (same_lane). The ego's
+--                        lane is the lane its centre is in (ego_lanes); a lane change is dated at the crossing,
+--                        so the lane and the lane run switch on the same frame. Not the
 --                        lane after a left or right turn's lane unless the ego drives it in this lane run: a
 --                        car that has turned off is no longer ahead in the lane of an ego going on (tracks are
 --                        recorded, so the ego's own path is known); on the turn's lane it is still partly ahead
 --   actor_nearest        it is the nearest road user (any kind) ahead of the ego in that lane: the one the ego
---                        follows
+--                        follows. One off to the side of the ego (lat_gap_m > 0) and heading more than 45 degrees
+--                        off the ego's heading (round a bend) is not when a road user straight in front of the ego
+--                        (lat_gap_m = 0), in its lane or the lane beside, is nearer: in a double left turn the car
+--                        right in front of the ego may be labelled the next lane while one 10-15 m to the side,
+--                        further round the bend, is labelled the ego's
 --   headway_in_range     time headway (gap / ego speed) in [min_distance_from_sut_in_time_units,
 --                        max_distance_from_sut_in_time_units]
 -- segment = the ego's lane run, so the phase ends at the latest on the frame before the ego's lane change.
@@ -52,9 +56,14 @@ ahead as (
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
+        r.lat_gap_m,
+        r.rel_heading_rad,
         r.time_headway_s,
         r.lon_gap_m > 0 as actor_ahead,
-        r.same_lane and (turn.turn_lane_id is null or driven.lane_id is not null) as actor_in_ego_lane
+        r.same_lane and (turn.turn_lane_id is null or driven.lane_id is not null) as actor_in_ego_lane,
+        -- straight in front of the ego (the boxes overlap across its heading) in its lane or the one beside:
+        -- whatever the lane labels say, the ego follows it, so it stands between the ego and those further on
+        r.lat_gap_m = 0 and (r.same_lane or r.adjacent_side is not null) as actor_in_line
     from relations as r
     inner join drive_inputs as d
         on r.drive_key = d.drive_key
@@ -85,13 +94,27 @@ nearest as (
     group by a.drive_key, a.ego_key, a.frame
 ),
 
+in_line_gap as (
+    -- the nearest road user straight in front of the ego, in its lane or the one beside
+    select drive_key, ego_key, frame, min(lon_gap_m) as lon_gap_m
+    from ahead
+    where actor_ahead and actor_in_line
+    group by drive_key, ego_key, frame
+),
+
 ranked as (
     select
         a.*,
-        n.actor_key is not null as is_nearest
+        n.actor_key is not null
+            -- one off to the side of the ego and heading more across the ego's way than along it (round a bend)
+            -- is behind whoever is nearer and straight in front of the ego
+            and (a.lat_gap_m = 0 or abs(a.rel_heading_rad) <= pi() / 4 or l.lon_gap_m is null
+                or l.lon_gap_m >= a.lon_gap_m) as is_nearest
     from ahead as a
     left join nearest as n
         on a.drive_key = n.drive_key and a.ego_key = n.ego_key and a.frame = n.frame and a.actor_key = n.actor_key
+    left join in_line_gap as l
+        on a.drive_key = l.drive_key and a.ego_key = l.ego_key and a.frame = l.frame
 ),
 
 conditions as (

@@ -4,11 +4,11 @@
 -- reads: scenario_frames (phases/unprotected_left_turn_frames.sql)
 -- params: none
 --
--- holds = all of: actor_kind_ok, ego_turns_left, ego_in_junction. Each condition is defined in
+-- holds = all of: actor_kind_ok, ego_turns_left, ego_turning. Each condition is defined in
 -- unprotected_left_turn_frames.sql and docs/semantics.md; segment = 0 (the phase is not cut by the ego's lane
 -- runs).
 select
     0 as segment,
-    actor_kind_ok and ego_turns_left and ego_in_junction as holds,
+    actor_kind_ok and ego_turns_left and ego_turning as holds,
     *
 from scenario_frames

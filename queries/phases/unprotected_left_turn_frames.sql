@@ -4,7 +4,7 @@
 --        condition (phases/stop_in_green_light.sql, ... take the conjunction of theirs)
 -- reads: crossing_pairs, junction_frames, passages, encroachments, tracks, drive_inputs, traffic_lights,
 --        traffic_light_states
--- params: $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
+-- params: $max_gap_s, $kinds_csv, $min_offset_from_junction_start_m, $max_offset_from_junction_start_m,
 --         $min_offset_from_junction_end_m, $max_offset_from_junction_end_m,
 --         $ref_car_max_distance_from_junction_m, $stopping_car_speed_limit_mps,
 --         $max_offset_from_traffic_light_m, $encroachment_start_buffer, $encroachment_end_buffer
@@ -35,6 +35,16 @@
 --   actor_first                              the actor's box leaves the area before the ego's enters it
 --   ego_yields                               actor_first, and the ego's box has not reached the area yet: the
 --                                            ego is giving the right of way
+--   ego_has_stopped                          the ego stood (ego_stopped) at a frame of the current stretch of
+--                                            frames at which phase 1's other conditions all hold: it stops,
+--                                            then gives the right of way, pulling forward or standing
+--   actor_finishing                          actor_crossing, or the actor is the last of kinds to leave the
+--                                            encroachment area (its box) before the ego sets off (or left it at
+--                                            most max_gap before that one), from that frame until the ego sets
+--                                            off: the car the ego waited for
+--   ego_turning                              ego_in_junction, after the ego's last stand (ego_stopped) before
+--                                            its box reaches the encroachment area: the turn, from the moment
+--                                            the ego sets off
 --   actor_crossing                           the actor is past the start of its (buffered) encroachment and
 --                                            at most max_offset_from_junction_end past the junction end
 --   actor_reaches_junction_end               the actor gets to min_offset_from_junction_end from the junction
@@ -322,6 +332,7 @@ measured as (
         c.actor_first,
         c.pet_s,
         c.ego_in_frame as ego_encroachment_frame,
+        c.actor_out_frame as actor_clear_frame,
         min(case when f.actor_offset_from_junction_end_m >= $min_offset_from_junction_end_m then f.frame end) over (
             partition by f.drive_id, f.ego_id, f.ego_passage, f.actor_id, f.actor_passage
         ) as actor_end_frame,
@@ -368,6 +379,54 @@ conditions as (
         coalesce(ego_offset_from_junction_start_m >= $min_offset_from_junction_start_m
             and ego_offset_from_junction_end_m <= 0, false) as ego_in_junction
     from measured
+),
+
+waiting as (
+    -- phase 1's conditions but the stop itself, and the last frame (so far) at which they did not all hold
+    select
+        *,
+        actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range and light_green
+            and actor_near_junction_start and ego_yields as ego_waiting,
+        max(case when not (actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range
+                           and light_green and actor_near_junction_start and ego_yields) then frame end) over (
+            partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
+            rows between unbounded preceding and current row
+        ) as waiting_since_frame,
+        -- the ego's last stand before its box reaches the encroachment area (before it leaves the junction when
+        -- the paths share no area): it sets off on its turn at the next frame
+        max(case when ego_stopped and (ego_encroachment_frame is null or frame < ego_encroachment_frame)
+                 then frame end) over (
+            partition by drive_id, ego_id, ego_passage, actor_id, actor_passage
+        ) as ego_last_stop_frame
+    from conditions
+),
+
+clearing as (
+    -- the last frame at which an actor of kinds that crosses first leaves the ego's path before the ego sets off
+    -- (the frame after its last stand), over every actor of the ego's passage: the actor the ego waited for, with
+    -- any that left it at most max_gap earlier (two oncoming lanes passing together)
+    select
+        w.*,
+        max(case when w.actor_kind_ok and w.actor_first and w.actor_clear_frame <= w.ego_last_stop_frame + 1
+                 then w.actor_clear_frame end) over (
+            partition by w.drive_id, w.ego_id, w.ego_passage
+        ) - floor($max_gap_s / nullif(d.dt_s, 0) + 1e-9) as waited_for_from_frame
+    from waiting as w
+    inner join drive_inputs as d
+        on w.drive_id = d.drive_id
 )
 
-select * from conditions
+select
+    *,
+    -- the ego stopped at some frame of the current stretch of waiting (the stop starts phase 1; it then gives
+    -- the right of way, pulling forward to its waiting position or not)
+    coalesce(max(case when ego_waiting and ego_stopped then frame end) over (
+        partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
+        rows between unbounded preceding and current row
+    ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped,
+    ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning,
+    -- crossing, or, for the last actor the ego waited for, past the encroachment area until the ego sets off
+    actor_crossing or coalesce(actor_clear_frame >= waited_for_from_frame
+                               and actor_clear_frame <= ego_last_stop_frame + 1 and frame >= actor_clear_frame
+                               and frame <= ego_last_stop_frame, false) as actor_finishing
+from clearing

@@ -1,30 +1,27 @@
 -- relations: ego_lanes
--- grain: one row per (drive_id, ego_id, frame): the ego's lane (the lane of its lane run), its best lane, and its
---        lane run
+-- grain: one row per (drive_id, ego_id, frame): the ego's lane (the lane its centre is in) and its lane run
 -- reads: egos, tracks, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $lane_calculation_tolerance_length_m
 --
 -- A lane run is a stretch the ego drives in one lane. It ends at a lane change:
---   1. the ego's best lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
+--   1. the ego's lane becomes a lane beside the lane it had (lane_neighbours: a same-direction
 --      neighbour, or the neighbour's successor or predecessor at a segment boundary): a transition. Lanes are
 --      compared between consecutive samples of the ego, so frames missing in between (a dropped frame) do not
 --      hide a transition: it is dated at the first frame seen in the new lane;
 --   2. the change is confirmed if, after the transition, the ego is in a lane and more than
 --      lane_calculation_tolerance_length away from the old lane and from the lanes that continue it (its
 --      successors and predecessors): the keep_lane tolerance. It is dated at the transition, the frame at
---      which the ego's centre crossed into the new lane. The best lane may meanwhile have moved on to the
+--      which the ego's centre crossed into the new lane. The lane may meanwhile have moved on to the
 --      next segment, so a lane change across a segment boundary still counts;
---   3. if the ego's best lane returns to the old lane (or its continuation) first, there was no change, and
+--   3. if the ego's lane returns to the old lane (or its continuation) first, there was no change, and
 --      that return is not a transition of its own (so a flicker across the line never counts as a change back).
 -- Moving on to a successor lane (a new road segment, a lane inside a junction) is not a lane change.
 --
---   best_lane_id      the lane the ego's centre is in at that frame (actor_lanes)
---   lane_id           the ego's lane: its best lane, except after a transition that is never confirmed (the
---                     centre crossed the line and came back within the tolerance: jitter, a drift), when it is
---                     still the lane it came from. Every relation to the ego's lane (relations.same_lane,
---                     adjacent_side) uses this column, so "same lane", "beside" and the lane change agree frame
---                     by frame: a leader is in the ego's lane up to the frame before the change, and beside it
---                     from the frame of the change on
+--   lane_id           the ego's lane: the lane its centre is in at that frame (actor_lanes), by the same rule as
+--                     every actor's lane, so "same lane" and "beside" compare two lanes found alike. The tolerance
+--                     above decides only whether a crossing is a lane change (a new lane run: keep_lane()), never
+--                     which lane the ego is in: an ego whose centre drives 0.5 m over the line for seconds is in
+--                     the lane its centre is in, as a car behind it at the same offset is
 --   lane_change_side  the side the ego moved to, on the frame of the change (the first frame of a lane run)
 --   lane_run          how many lane changes the ego made up to this frame
 --   drive_key, ego_key  integer keys of the drive and the ego (tracks.drive_key, actor_key): the steps join and
@@ -156,34 +153,30 @@ old_lane as (
     group by p.drive_key, p.ego_key, p.frame, p.lane_id, p.transition_frame, p.side
 ),
 
-returns as (
+changes as (
+    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
+    -- tolerance away from the old lane (and from the lanes that continue it). The return is a window over the
+    -- transition's frames, not a second reading of old_lane joined back (which Spark evaluated differently from
+    -- DuckDB once nothing else read it)
     select
         drive_key,
         ego_key,
         transition_frame,
-        min(frame) as return_frame
-    from old_lane
-    where back_in_old_lane = 1 and frame > transition_frame
-    group by drive_key, ego_key, transition_frame
-),
-
-changes as (
-    -- the first frame, before any return to the old lane, in which the ego is in a lane and more than the
-    -- tolerance away from the old lane (and from the lanes that continue it)
-    select
-        o.drive_key,
-        o.ego_key,
-        o.transition_frame,
-        o.side,
-        min(o.frame) as frame
-    from old_lane as o
-    left join returns as r
-        on o.drive_key = r.drive_key and o.ego_key = r.ego_key and o.transition_frame = r.transition_frame
-    where o.lane_id is not null
-        and (r.return_frame is null or o.frame < r.return_frame)
-        and o.back_in_old_lane = 0
-        and (o.old_lane_dist_m is null or o.old_lane_dist_m > $lane_calculation_tolerance_length_m)
-    group by o.drive_key, o.ego_key, o.transition_frame, o.side
+        side,
+        min(frame) as frame
+    from (
+        select
+            *,
+            min(case when back_in_old_lane = 1 and frame > transition_frame then frame end) over (
+                partition by drive_key, ego_key, transition_frame
+            ) as return_frame
+        from old_lane
+    ) as o
+    where lane_id is not null
+        and (return_frame is null or frame < return_frame)
+        and back_in_old_lane = 0
+        and (old_lane_dist_m is null or old_lane_dist_m > $lane_calculation_tolerance_length_m)
+    group by drive_key, ego_key, transition_frame, side
 ),
 
 classed as (
@@ -230,25 +223,6 @@ counted as (
     inner join classed as k
         on c.drive_key = k.drive_key and c.ego_key = k.ego_key and c.transition_frame = k.transition_frame
     where not k.is_return
-),
-
-resolved as (
-    -- a transition confirmed by a lane change takes effect at once (the change is dated at the transition: the
-    -- frame the ego's centre crossed into the new lane); so does a return; an unconfirmed transition holds the
-    -- old lane until the ego returns to it (or for good, until the next transition)
-    select
-        k.drive_key,
-        k.ego_key,
-        k.transition_frame,
-        case
-            when k.is_return or c.frame is not null then k.transition_frame
-            else r.return_frame
-        end as resolved_frame
-    from classed as k
-    left join counted as c
-        on k.drive_key = c.drive_key and k.ego_key = c.ego_key and k.transition_frame = c.transition_frame
-    left join returns as r
-        on k.drive_key = r.drive_key and k.ego_key = r.ego_key and k.transition_frame = r.transition_frame
 )
 
 select
@@ -256,12 +230,7 @@ select
     e.ego_id,
     p.frame,
     e.t_s,
-    case
-        when p.transition_frame is not null and (v.resolved_frame is null or p.frame < v.resolved_frame)
-            then p.from_lane_id
-        else p.lane_id
-    end as lane_id,
-    p.lane_id as best_lane_id,
+    p.lane_id,
     c.side as lane_change_side,
     count(c.frame) over (
         partition by p.drive_key, p.ego_key order by p.frame rows between unbounded preceding and current row
@@ -271,7 +240,5 @@ select
 from pending as p
 inner join ego_rows as e
     on p.drive_key = e.drive_key and p.ego_key = e.ego_key and p.frame = e.frame
-left join resolved as v
-    on p.drive_key = v.drive_key and p.ego_key = v.ego_key and p.transition_frame = v.transition_frame
 left join counted as c
     on p.drive_key = c.drive_key and p.ego_key = c.ego_key and p.frame = c.transition_frame

@@ -1,7 +1,7 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor of the run's relation kinds within
 --        relation_range of an ego
--- reads: egos, tracks, ego_lanes, actor_lanes, drive_inputs, lane_neighbours, lane_line
+-- reads: egos, tracks, ego_lanes, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps, $relation_kinds_csv
 --
 -- Joined on the integer keys ingest assigns (schema.TRACK_KEYS), which each row carries beside the ids:
@@ -28,8 +28,10 @@
 --   ego_lane_id         the ego's lane (ego_lanes.lane_id), lane_run its lane run (ego_lanes.lane_run)
 --   ego_speed_mps, actor_speed_mps  the two speeds (tracks.speed_mps): the phases read them from here, not
 --                       from tracks
---   same_lane           the actor's lane is the ego's lane, or its direct successor or predecessor (lane_line)
---   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours)
+--   same_lane           the actor's lane is the ego's lane, or a lane that continues it (lane_line), or one of the
+--                       two centres lies inside the other's lane (where lanes overlap, at a fork)
+--   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours) and the
+--                       two are not in the same lane
 --   closing_speed_mps   rate at which lon_gap shrinks: actor speed along the ego axis minus ego speed,
 --                       sign taken so that positive means closing
 --   time_headway_s      lon_gap / speed of the trailing vehicle (the one behind); NULL if it does not move
@@ -194,12 +196,16 @@ measured as (
     from corner_offsets
 ),
 
-lane_relation as (
+lane_pairs as (
     select
         m.*,
         al.lane_id as actor_lane_id,
-        line.lane_id is not null as same_lane,
-        beside.side as adjacent_side
+        line.lane_id is not null
+            -- where two lanes overlap (a lane that forks, or widens into two), a centre inside both is in either:
+            -- the actor inside the ego's lane, or the ego inside the actor's, is in the same lane (headed its way,
+            -- as actor_lanes asks)
+            or actor_inside.lane_id is not null or ego_inside.lane_id is not null as same_lane,
+        beside.side as beside_side
     from measured as m
     inner join drive_inputs as d
         on m.drive_key = d.drive_key
@@ -209,6 +215,21 @@ lane_relation as (
         on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
     left join lane_line as line
         on d.map_id = line.map_id and m.ego_lane_id = line.lane_id and al.lane_id = line.line_lane_id
+    left join track_lanes as actor_inside
+        on m.drive_key = actor_inside.drive_key and m.actor_key = actor_inside.actor_key
+        and m.frame = actor_inside.frame and m.ego_lane_id = actor_inside.lane_id and actor_inside.dist_m = 0
+        and abs(actor_inside.heading_diff_rad) < pi() / 2
+    left join track_lanes as ego_inside
+        on m.drive_key = ego_inside.drive_key and m.ego_key = ego_inside.actor_key
+        and m.frame = ego_inside.frame and al.lane_id = ego_inside.lane_id and ego_inside.dist_m = 0
+        and abs(ego_inside.heading_diff_rad) < pi() / 2
+),
+
+lane_relation as (
+    select
+        *,
+        case when not same_lane then beside_side end as adjacent_side
+    from lane_pairs
 ),
 
 mttc_roots as (
