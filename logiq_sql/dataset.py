@@ -27,7 +27,7 @@ import duckdb
 from logiq_sql import schema
 from logiq_sql.errors import InputError, arg
 
-INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
+INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 MARKER = "_logiq_sql_dataset"  # written at the top of a dataset: what attach and --engine spark check
 
 

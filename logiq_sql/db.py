@@ -162,7 +162,7 @@ STEP_CACHE = Table(
 )
 
 OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
-TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
+TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
 
 _DUCK_TYPES = {pl.String(): "VARCHAR", pl.Float64(): "DOUBLE", pl.Int64(): "BIGINT", pl.Boolean(): "BOOLEAN"}
 
@@ -335,6 +335,7 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     _no_progress_bar(con)
     for table in TABLES:
         create_table(con, table)
+    _backfill_keys(con)
     con.execute(DRIVES_VIEW)
     con.execute("comment on view drives is " + _quote(
         "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
@@ -342,6 +343,29 @@ def connect(path: str | Path, read_only: bool = False) -> duckdb.DuckDBPyConnect
     for (col,) in con.execute("select column_name from duckdb_columns() where table_name = 'drives'").fetchall():
         con.execute(f"comment on column drives.{col} is {_quote(DRIVES_DOC.get(col) or inherited[col])}")
     return con
+
+
+def _backfill_keys(con: duckdb.DuckDBPyConnection) -> None:
+    """A file written before ingest assigned integer keys gets them for its rows (the queries join on them)."""
+    drives = [r[0] for r in con.execute("select drive_id from drive_inputs where drive_key is null").fetchall()]
+    if not drives:
+        return
+    con.register("_keys", pl.DataFrame({"drive_id": drives, "drive_key": [schema.drive_key(d) for d in drives]}))
+    con.execute("update drive_inputs as d set drive_key = k.drive_key from _keys as k where d.drive_id = k.drive_id")
+    con.execute("""
+        update tracks as t set drive_key = k.drive_key, actor_key = k.actor_key, row_key = k.row_key
+        from (
+            select r.drive_id, r.actor_id, r.frame, n.drive_key,
+                dense_rank() over (partition by r.drive_id order by r.actor_id) as actor_key,
+                row_number() over (partition by r.drive_id order by r.actor_id, r.frame) as row_key
+            from tracks as r inner join _keys as n on r.drive_id = n.drive_id
+        ) as k
+        where t.drive_id = k.drive_id and t.actor_id = k.actor_id and t.frame = k.frame""")
+    con.execute("""
+        update track_lanes as l set drive_key = t.drive_key, actor_key = t.actor_key, row_key = t.row_key
+        from tracks as t
+        where l.drive_key is null and l.drive_id = t.drive_id and l.actor_id = t.actor_id and l.frame = t.frame""")
+    con.unregister("_keys")
 
 
 def open_for_read(path: str | Path) -> duckdb.DuckDBPyConnection:

@@ -40,7 +40,7 @@ ENGINES = ("duckdb", "spark", "polars")
 SPARK_MASTER_ENV = "SPARK_MASTER"
 DEFAULT_SPARK_MASTER = "local[2]"
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
-INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
+INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
 # what a step may read besides other steps: the canonical tables (a drive's rows and its map's, versioned by
 # ingest_versions) and the batch's drive ids
@@ -64,7 +64,9 @@ class Engine:
     name = "engine"
     owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+        """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``
+        is true (a phase step in a match, where nothing reads the others: ``runner.run_scenario``)."""
         raise NotImplementedError
 
     def frame(self, sql: str) -> pl.DataFrame:
@@ -137,28 +139,28 @@ class DuckEngine(Engine):
             self.cache.record(self.owners, step, table, key, computed=True,
                               compute_s=time.process_time() - started)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         if table in self._views:  # a table cannot replace a view
             self.con.execute(f"drop view {table}")
             self._views.discard(table)
-        key = self._cache_key(query_text(relative), bind(relative, values),
-                              tables_read(relative) - cte_names(relative))
-        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values))
+        text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
+        key = self._cache_key(text, bind(relative, values), tables_read(relative) - cte_names(relative))
+        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
 
     def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
         self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
 
-    def _compute(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
-            materialise(self.con, table, relative, values)
+            materialise(self.con, table, relative, values, holding)
             return
         # computed once, read by each scenario through a view: at tier S ego_on_same_lane.sql costs about 2 CPU s,
         # a copy of its 1.1 M rows 0.6
-        if key not in self._kept:
+        if key not in self._kept:  # (shared steps are phase steps of a match: each reader asks for the same rows)
             self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
-            materialise(self.con, self._kept[key], relative, values)
+            materialise(self.con, self._kept[key], relative, values, holding)
         self.con.execute(f"drop table if exists temp.main.{table}")
         self.con.execute(f"create temp view {table} as select * from {self._kept[key]}")
         self._views.add(table)
@@ -375,12 +377,13 @@ class SparkEngine(Engine):
         if old is not None:
             old.unpersist()
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         args = bind(relative, values)
         *shared, (_, query) = spark_statements(relative)
         for view, text in shared:  # the CTEs read more than once, computed once (spark_statements)
             self.keep_frame(view, self.spark.sql(text, args=args))
-        self.keep_frame(table, self.spark.sql(query, args=args))
+        rows = self.spark.sql(query, args=args)
+        self.keep_frame(table, rows.where("holds") if holding else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
 
     def frame(self, sql: str) -> pl.DataFrame:
@@ -607,9 +610,10 @@ class PolarsEngine(Engine):
         return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
                 .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         check_engine(self.name, [relative])
-        self.ctx.register(table, self.run(relative, values).lazy())
+        rows = self.run(relative, values)
+        self.ctx.register(table, (rows.filter(pl.col("holds")) if holding else rows).lazy())
 
     def frame(self, sql: str) -> pl.DataFrame:
         return self.ctx.execute(_as_query(sql), eager=True)

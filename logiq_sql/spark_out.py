@@ -33,7 +33,7 @@ import polars as pl
 from logiq_sql import db
 from logiq_sql.contract import sample_columns
 from logiq_sql.plan import IDENTIFY_QUERY, SAMPLES_QUERY, phase_steps
-from logiq_sql.runner import coverage_buckets
+from logiq_sql.runner import coverage_buckets, is_phase
 from logiq_sql.scenario import Scenario
 from logiq_sql.store import PERSISTED, STORED_ALWAYS
 from logiq_sql.timing import stage
@@ -109,7 +109,7 @@ class SparkResults:
         engine, spark = self.engine, self.spark
         with stage(f"scenario {s.name}"):
             for table, rel in phase_steps(s):
-                engine.materialise(table, rel, values)
+                engine.materialise(table, rel, values, holding=is_phase(table))
             engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
         matches = spark.table("scenario_matches")
         with stage("kpis"):
