@@ -37,16 +37,16 @@ from pathlib import Path
 import polars as pl
 
 from logiq_sql.evaluation.labels import (
-    _GREEN,
-    _LEFT,
     EPS,
+    GREEN,
     LABEL_SCHEMA,
-    _is_vehicle,
-    _on_paths,
+    LEFT_TURN_DIRS,
     conflict_zones,
+    is_vehicle,
     label_sumo,
     load_run,
     load_signals,
+    on_paths,
     scenario_values,
 )
 from logiq_sql.readers.sumo import run_folders
@@ -74,8 +74,8 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
               "link": pl.String, "link_f": pl.String, "actor_out": pl.Int64, "set_off": pl.Int64}
     if links.is_empty():
         return pl.DataFrame(schema=schema)
-    paths = _on_paths(rows, links, path_lanes)
-    egos = paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT))
+    paths = on_paths(rows, links, path_lanes)
+    egos = paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
     ego_links = egos.select(ego_id="vehicle_id", link="link", from_edge="from_edge", width_m="width_m").unique(
         "ego_id")
     actors = paths.filter(pl.col("kind").is_in(p["kinds"])).select(
@@ -131,7 +131,7 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
     standing = ego_state.filter(
         (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS) & pl.col("front_m").is_between(lo, hi)
         & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS) & (pl.col("front_m") < pl.col("total_m"))
-        & pl.col("link_state").is_in(_GREEN)).select("ego_id", "frame", "t_s")
+        & pl.col("link_state").is_in(GREEN)).select("ego_id", "frame", "t_s")
     approaching = actor_rows.filter(pl.col("front_f") >= lo).select("actor_id", "frame")
     starts = (pairs.select("ego_id", "actor_id", "actor_out").unique()
               .join(last_red, on=["ego_id", "actor_id"], how="left")

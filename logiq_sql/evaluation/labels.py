@@ -140,7 +140,7 @@ def _has_leaders(fcd_path: Path) -> bool:
     return start < 0 or b"leaderID=" in head[start:end if end > 0 else None]
 
 
-def _is_vehicle() -> pl.Expr:
+def is_vehicle() -> pl.Expr:
     """A potential ego: a vType of a vehicle kind (not bicycle, pedestrian or an object class)."""
     return pl.col("kind").is_in(VEHICLE_KINDS)
 
@@ -180,14 +180,14 @@ def follower_vehicle(rows: pl.DataFrame, p: dict, dt: float) -> pl.DataFrame:
     the ego was on, in its current lane run, at most same_road_limit ago. SUMO's leader search alone follows the
     actor's route across a junction, so a car waiting on its approach would follow an ego that came from another
     approach and turned onto the exit the car will take."""
-    egos = rows.filter(_is_vehicle()).select(ego_id="vehicle_id", frame="frame", ego_run="lane_run")
+    egos = rows.filter(is_vehicle()).select(ego_id="vehicle_id", frame="frame", ego_run="lane_run")
     following = (
         rows.filter(pl.col("kind").is_in(p["kinds"]) & pl.col("leader_id").is_not_null()
                     & _headway_ok("leader_gap_m", "speed_mps", p))
         .select(ego_id="leader_id", actor_id="vehicle_id", frame="frame", t_s="t_s", lane_id="lane_id")
         .join(egos, on=["ego_id", "frame"])
     )
-    ego_was_on = (rows.filter(_is_vehicle())
+    ego_was_on = (rows.filter(is_vehicle())
                   .select(ego_id="vehicle_id", lane_id="lane_id", ego_run="lane_run", t_s="t_s",
                           ego_on_lane_s="t_s").sort("t_s"))
     same_lane = (following.sort("t_s")
@@ -249,7 +249,7 @@ def sut_cut_out(rows: pl.DataFrame, changes: pl.DataFrame, p: dict, dt: float) -
     Phase 1 ends at the frame before the record, phase 2 starts at the record's frame (SUMO records the change
     in the step the ego's front centre enters the new lane: its FCD lane there is already the new one).
     """
-    vehicle_rows = rows.filter(_is_vehicle())
+    vehicle_rows = rows.filter(is_vehicle())
     ego_at = vehicle_rows.select(ego_id="vehicle_id", frame="frame", e_leader="leader_id", e_gap="leader_gap_m",
                                  e_speed="speed_mps", e_run="lane_run", e_edge="edge_id", e_index="lane_index",
                                  e_segment="lane_segment", t_s="t_s")
@@ -343,7 +343,7 @@ def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.Da
     max_phase_duration."""
     boxes = _with_boxes(rows)
     cols = ("vehicle_id", "frame", "t_s", "xc_m", "yc_m", "heading_rad", "length_m", "width_m", "reach_m")
-    egos = boxes.filter(_is_vehicle() & (pl.col("speed_mps") >= p["sut_minimal_speed"] - EPS)).select(cols)
+    egos = boxes.filter(is_vehicle() & (pl.col("speed_mps") >= p["sut_minimal_speed"] - EPS)).select(cols)
     bikes = boxes.filter(pl.col("kind") == "cyclist").select(cols)
     if egos.is_empty() or bikes.is_empty():
         return pl.DataFrame(schema={k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s",
@@ -380,8 +380,8 @@ def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.Da
 
 # ------------------------------------------------------------ unprotected_left_turn_with_yield_and_traffic_light
 
-_GREEN = ("G", "g")  # SUMO link states of a green light: priority green and permissive green (must yield)
-_LEFT = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
+GREEN = ("G", "g")  # SUMO link states of a green light: priority green and permissive green (must yield)
+LEFT_TURN_DIRS = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
 
 
 def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
@@ -459,7 +459,7 @@ def conflict_zones(links: pl.DataFrame, path_lanes: pl.DataFrame, ego_widths: li
     schema = {"link": pl.String, "link_f": pl.String, "width_m": pl.Float64, "width_m_f": pl.Float64,
               "enter_m": pl.Float64, "leave_m": pl.Float64, "enter_m_f": pl.Float64, "leave_m_f": pl.Float64}
     paths = links.with_row_index("path").select("path", "link", "dir", "from_edge", "shape")
-    pairs = (paths.filter(pl.col("dir").is_in(_LEFT))
+    pairs = (paths.filter(pl.col("dir").is_in(LEFT_TURN_DIRS))
              .join(paths.drop("dir"), how="cross", suffix="_f").filter(pl.col("from_edge") != pl.col("from_edge_f"))
              .join(pl.DataFrame({"width_m": ego_widths}, schema={"width_m": pl.Float64}), how="cross")
              .join(pl.DataFrame({"width_m_f": actor_widths}, schema={"width_m_f": pl.Float64}), how="cross"))
@@ -494,7 +494,7 @@ def conflict_zones(links: pl.DataFrame, path_lanes: pl.DataFrame, ego_widths: li
             .filter(pl.col("area_m2") > 0).join(ego_m, on="pair").join(foe_m, on="pair").select(*schema))
 
 
-def _on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame) -> pl.DataFrame:
+def on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame) -> pl.DataFrame:
     """The rows of every vehicle that went onto a signalised link, on the lanes of that link's path, with its
     link and front_m / centre_m: the front's (centre's) offset from the junction start along the path.
 
@@ -525,17 +525,17 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     out_schema = {k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s", "source")}
     if links.is_empty():
         return pl.DataFrame(schema=out_schema)
-    paths = _on_paths(rows, links, path_lanes)
+    paths = on_paths(rows, links, path_lanes)
     lo, hi = p["min_offset_from_junction_start"] - EPS, p["max_offset_from_junction_start"] + EPS
     near = pl.col("front_m").is_between(lo, hi)
     light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
              .unique(["tl", "frame"], keep="last").sort("frame"))
     # the ego's frames near its junction start on green (stopped or not: it stops, then gives the right of way)
-    stops = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT) & near
+    stops = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS) & near
                           & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS)
                           & (pl.col("front_m") < pl.col("total_m")))
              .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
-             .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(_GREEN))
+             .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
                      width_m="width_m", stopped=pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS))
     foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
@@ -556,7 +556,7 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                  .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
                  .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
-    inside = (paths.filter(_is_vehicle() & pl.col("dir").is_in(_LEFT))
+    inside = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
               .group_by(ego_id="vehicle_id")
               .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
                                               & (pl.col("front_m") < pl.col("total_m"))).max(),
