@@ -103,7 +103,7 @@ TESTS_BY_LAYER = {
     "storage": ("test_concurrency", "test_interrupted", "test_step_cache", "test_keep"),
     "ingestion": ("test_bad_input", "test_ingest_av2", "test_ingest_batch", "test_ingest_commonroad",
                   "test_ingest_scenarionet", "test_ingest_sumo", "test_formats_opendrive", "test_formats_osi",
-                  "test_formats_sumo_folders", "test_localise", "test_localise_join", "test_accounting"),
+                  "test_formats_sumo_folders", "test_localise", "test_localise_join", "test_accounting", "test_keys"),
     "engines": ("test_polars", "test_spark", "test_spark_cluster", "test_spark_dataset", "test_shared_steps"),
     "matching": ("test_phases", "test_relations", "test_relations_of", "test_relations_prune", "test_cut_out",
                  "test_left_turn", "test_left_turn_real", "test_manoeuvres", "test_interval_oracle", "test_properties",

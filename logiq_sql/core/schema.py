@@ -6,6 +6,7 @@ the Parquet reader's checks and the docs table in ``docs/tables.md`` are all gen
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import polars as pl
@@ -179,9 +180,36 @@ TRAFFIC_LIGHT_STATES = Table(
     ),
 )
 
+# Integer keys assigned at ingest: every query joins, windows and groups on them (integers hash and sort several
+# times faster than the string ids); drive_id and actor_id stay for people and for the outputs.
+DRIVE_KEY = Column("drive_key", I, "Integer key of the drive, assigned at ingest (a 64-bit digest of drive_id, "
+                                   "unique in the file): what queries join on.")
+TRACK_KEYS = (
+    DRIVE_KEY,
+    Column("actor_key", I, "Integer key of the actor within its drive, assigned at ingest: its rank in actor_id "
+                           "order, from 1."),
+    Column("row_key", I, "Integer key of the track row within its drive, assigned at ingest: its rank in "
+                         "(actor_id, frame) order, from 1."),
+)
+
+
+def drive_key(drive_id: str) -> int:
+    """The drive's integer key: a signed 64-bit digest of its drive_id (the same in every file and dataset)."""
+    return int.from_bytes(hashlib.blake2b(drive_id.encode(), digest_size=8).digest(), "big", signed=True)
+
+
+def with_keys(table: Table, keys: tuple[Column, ...], doc: str) -> Table:
+    """``table`` as stored: its columns, then the integer keys ingest assigns."""
+    return Table(table.name, f"{table.doc} {doc}", (*table.columns, *keys))
+
+
+# the tables as stored (readers give TRACKS; ingest adds the keys and stores the rows in (drive, actor, frame) order)
+STORED_TRACKS = with_keys(TRACKS, TRACK_KEYS, "Stored in (drive, actor_id, frame) order, with integer keys.")
+STORED_DRIVE_INPUTS = with_keys(DRIVE_INPUTS, (DRIVE_KEY,), "drive_key is the integer key of the drive.")
+
 MAP_TABLES = (LANES, LANE_SUCCESSORS, JUNCTIONS, TRAFFIC_LIGHTS)
 MAP_TABLE_NAMES = tuple(t.name for t in MAP_TABLES)
-ALL_INPUT_TABLES = (DRIVE_INPUTS, TRACKS, *MAP_TABLES, TRAFFIC_LIGHT_STATES)
+ALL_INPUT_TABLES = (STORED_DRIVE_INPUTS, STORED_TRACKS, *MAP_TABLES, TRAFFIC_LIGHT_STATES)
 
 
 def empty(table: Table) -> pl.DataFrame:
@@ -209,6 +237,8 @@ TRACK_LANES = Table(
                "Actor heading minus lane direction at the nearest centre-line point, in (-pi, pi].", False),
     ),
 )
+STORED_TRACK_LANES = with_keys(TRACK_LANES, TRACK_KEYS, "Stored in (drive, actor_id, frame) order, with the "
+                                                       "integer keys of its track row.")
 LOCALISATION_RANGE_M = 3.0
 # tables whose rows belong to one drive: replaced together when the drive is ingested again or rejected
 DRIVE_TABLE_NAMES = ("tracks", "track_lanes", "traffic_light_states", "drive_inputs")

@@ -109,9 +109,13 @@ def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
 SINGLE_THREADED = ("relations/ego_lanes.sql",)
 
 
-def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object]) -> None:
-    """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours)."""
-    statement = f"create or replace temp table {table} as {query_text(relative)}"
+def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object],
+                holding: bool = False) -> None:
+    """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours);
+    ``holding``: only the rows whose ``holds`` is true (``Engine.materialise``)."""
+    query = query_text(relative)
+    statement = f"create or replace temp table {table} as " + (
+        f"select * from (\n{query}\n) as step where holds" if holding else query)
     if relative not in SINGLE_THREADED:
         con.execute(statement, bind(relative, values))
         return

@@ -26,7 +26,7 @@ from logiq_sql.core.errors import LogiqError
 from logiq_sql.core.sql import registered
 
 # the canonical tables a match reads; Spark's Parquet copies of the per-drive ones are partitioned by drive_id
-INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
+INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
 # what a step may read besides other steps: the canonical tables (a drive's rows and its map's, versioned by
 # ingest_versions) and the batch's drive ids
@@ -43,7 +43,9 @@ class Engine:
     name = "engine"
     owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+        """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``
+        is true (a phase step in a match, where nothing reads the others: ``runner.run_scenario``)."""
         raise NotImplementedError
 
     def frame(self, sql: str) -> pl.DataFrame:

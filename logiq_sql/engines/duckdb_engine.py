@@ -52,28 +52,28 @@ class DuckEngine(Engine):
             self.cache.record(self.owners, step, table, key, computed=True,
                               compute_s=time.process_time() - started)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         if table in self._views:  # a table cannot replace a view
             self.con.execute(f"drop view {table}")
             self._views.discard(table)
-        key = self._cache_key(query_text(relative), bind(relative, values),
-                              tables_read(relative) - cte_names(relative))
-        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values))
+        text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
+        key = self._cache_key(text, bind(relative, values), tables_read(relative) - cte_names(relative))
+        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
 
     def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
         self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
 
-    def _compute(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
-            materialise(self.con, table, relative, values)
+            materialise(self.con, table, relative, values, holding)
             return
         # computed once, read by each scenario through a view: copying a shared step's rows costs a fraction of
         # computing them again (benchmarks/README.md, "Figures behind the code's comments")
-        if key not in self._kept:
+        if key not in self._kept:  # (shared steps are phase steps of a match: each reader asks for the same rows)
             self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
-            materialise(self.con, self._kept[key], relative, values)
+            materialise(self.con, self._kept[key], relative, values, holding)
         self.con.execute(f"drop table if exists temp.main.{table}")
         self.con.execute(f"create temp view {table} as select * from {self._kept[key]}")
         self._views.add(table)

@@ -107,9 +107,10 @@ class PolarsEngine(Engine):
         return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
                 .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         check_runs(relative)
-        self.ctx.register(table, self.run(relative, values).lazy())
+        rows = self.run(relative, values)
+        self.ctx.register(table, (rows.filter(pl.col("holds")) if holding else rows).lazy())
 
     def frame(self, sql: str) -> pl.DataFrame:
         return self.ctx.execute(as_query(sql), eager=True)

@@ -172,12 +172,13 @@ class SparkEngine(Engine):
         if old is not None:
             old.unpersist()
 
-    def materialise(self, table: str, relative: str, values: dict[str, object]) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         args = bind(relative, values)
         *shared, (_, query) = spark_statements(relative)
         for view, text in shared:  # the CTEs read more than once, computed once (spark_statements)
             self.keep_frame(view, self.spark.sql(text, args=args))
-        self.keep_frame(table, self.spark.sql(query, args=args))
+        rows = self.spark.sql(query, args=args)
+        self.keep_frame(table, rows.where("holds") if holding else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
 
     def frame(self, sql: str) -> pl.DataFrame:

@@ -40,7 +40,7 @@ from logiq_sql.evaluation.labels import (
     EPS,
     GREEN,
     LABEL_SCHEMA,
-    LEFT,
+    LEFT_TURN_DIRS,
     conflict_zones,
     is_vehicle,
     label_sumo,
@@ -75,7 +75,7 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
     if links.is_empty():
         return pl.DataFrame(schema=schema)
     paths = on_paths(rows, links, path_lanes)
-    egos = paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT))
+    egos = paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
     ego_links = egos.select(ego_id="vehicle_id", link="link", from_edge="from_edge", width_m="width_m").unique(
         "ego_id")
     actors = paths.filter(pl.col("kind").is_in(p["kinds"])).select(

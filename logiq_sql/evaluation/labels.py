@@ -381,7 +381,7 @@ def cyclist_close_to_moving_sut(rows: pl.DataFrame, p: dict, dt: float) -> pl.Da
 # ------------------------------------------------------------ unprotected_left_turn_with_yield_and_traffic_light
 
 GREEN = ("G", "g")  # SUMO link states of a green light: priority green and permissive green (must yield)
-LEFT = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
+LEFT_TURN_DIRS = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
 
 
 def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
@@ -459,7 +459,7 @@ def conflict_zones(links: pl.DataFrame, path_lanes: pl.DataFrame, ego_widths: li
     schema = {"link": pl.String, "link_f": pl.String, "width_m": pl.Float64, "width_m_f": pl.Float64,
               "enter_m": pl.Float64, "leave_m": pl.Float64, "enter_m_f": pl.Float64, "leave_m_f": pl.Float64}
     paths = links.with_row_index("path").select("path", "link", "dir", "from_edge", "shape")
-    pairs = (paths.filter(pl.col("dir").is_in(LEFT))
+    pairs = (paths.filter(pl.col("dir").is_in(LEFT_TURN_DIRS))
              .join(paths.drop("dir"), how="cross", suffix="_f").filter(pl.col("from_edge") != pl.col("from_edge_f"))
              .join(pl.DataFrame({"width_m": ego_widths}, schema={"width_m": pl.Float64}), how="cross")
              .join(pl.DataFrame({"width_m_f": actor_widths}, schema={"width_m_f": pl.Float64}), how="cross"))
@@ -531,7 +531,7 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     light = (states.with_columns(frame=(pl.col("t_s") / dt).round().cast(pl.Int64)).drop("t_s")
              .unique(["tl", "frame"], keep="last").sort("frame"))
     # the ego's frames near its junction start on green (stopped or not: it stops, then gives the right of way)
-    stops = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT) & near
+    stops = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS) & near
                           & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS)
                           & (pl.col("front_m") < pl.col("total_m")))
              .sort("frame").join_asof(light, on="frame", by="tl", strategy="backward", check_sortedness=False)
@@ -556,7 +556,7 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                  .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
                  .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
-    inside = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT))
+    inside = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
               .group_by(ego_id="vehicle_id")
               .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
                                               & (pl.col("front_m") < pl.col("total_m"))).max(),

@@ -63,6 +63,7 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
+LOCATED = schema.TRACK_LANES.column_names  # what locate gives, in track_lanes' order (its keys follow)
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
 INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
@@ -398,6 +399,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     if not accepted:
         return written
     ids = pl.DataFrame({"drive_id": [d.drive_id for d, *_ in accepted]})
+    keys = drive_keys(con, ids["drive_id"].to_list())
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
     con.execute("begin transaction")
     try:
@@ -421,7 +423,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
             # order, a track being the rows of one track_no; written once, into tracks
             raw = pl.concat([t for _, t, *_ in accepted])
-            with registered(con, "tracks_raw", raw.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id())):
+            with registered(con, "tracks_raw", with_keys(raw, keys)):
                 con.execute("insert into tracks " + query_text("staging/tracks.sql"))
             del raw
         for map_id, drive in maps.items():
@@ -431,18 +433,52 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
                              "where drive_id in (select drive_id from _on_map)").pl()
             with stage("localisation"):
                 located = locate(staged, drive.lanes)
-            tables.insert(con, "track_lanes", located)
+            if not located.is_empty():
+                # the row's keys from tracks, stored in (drive, actor, frame) order as tracks are
+                with registered(con, "_located", located):
+                    con.execute(f"insert into track_lanes select {', '.join('l.' + c for c in LOCATED)}, "
+                                "t.drive_key, t.actor_key, t.row_key "
+                                "from _located as l inner join tracks as t on t.drive_id = l.drive_id "
+                                "and t.actor_id = l.actor_id and t.frame = l.frame "
+                                "order by t.drive_key, t.row_key, l.lane_id")
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
             "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
             "rows_read": d.rows_read or d.tracks.height, "rows_rejected": d.rows_rejected + dropped,
             "status": "ingested", "reject_reason": reason, "attribution": d.attribution,
-        } for d, _, dropped, reason in accepted], schema=schema.DRIVE_INPUTS.polars_schema))
+            "drive_key": keys[d.drive_id],
+        } for d, _, dropped, reason in accepted], schema=schema.STORED_DRIVE_INPUTS.polars_schema))
         con.execute("commit")
     except BaseException:
         con.execute("rollback")
         raise
     return written
+
+
+def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
+    """``drive_key`` of each drive; refuses a key another drive of the file already has (two digests alike,
+    about one chance in 10^10 among a million drives): joining on it would mix the two drives."""
+    keys = {d: schema.drive_key(d) for d in drive_ids}
+    if len(set(keys.values())) < len(keys):
+        raise InputError(f"two drives of this batch have the same drive_key: {sorted(keys)}. Fix: rename one.")
+    con.register("_new_keys", pl.DataFrame({"drive_id": list(keys), "drive_key": list(keys.values())}))
+    clash = con.execute("select n.drive_id, d.drive_id from _new_keys as n inner join drive_inputs as d "
+                        "on n.drive_key = d.drive_key and n.drive_id <> d.drive_id").fetchall()
+    con.unregister("_new_keys")
+    if clash:
+        raise InputError(f"drive '{clash[0][0]}' has the drive_key of drive '{clash[0][1]}' already in the file. "
+                         "Fix: give one of them another drive_id.")
+    return keys
+
+
+def with_keys(tracks: pl.DataFrame, keys: dict[str, int]) -> pl.DataFrame:
+    """Track rows in (drive, actor_id, frame) order with their integer keys (schema.TRACK_KEYS) and the
+    ``track_no`` staging/tracks.sql's windows use (different for neighbouring tracks)."""
+    return tracks.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()).with_columns(
+        drive_key=pl.col("drive_id").replace_strict(keys, return_dtype=pl.Int64),
+        actor_key=(pl.col("track_no") - pl.col("track_no").first().over("drive_id") + 1).cast(pl.Int64),
+        row_key=(pl.int_range(pl.len()).over("drive_id") + 1).cast(pl.Int64),
+    )
 
 
 def _insert_all(con: duckdb.DuckDBPyConnection, table: str, frames: list[pl.DataFrame]) -> None:
@@ -468,8 +504,8 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
             "ego_actor_id": drive.ego_actor_id, "rows_read": rows, "rows_rejected": rows, "status": "rejected",
-            "reject_reason": reason, "attribution": drive.attribution,
-        }], schema=schema.DRIVE_INPUTS.polars_schema))
+            "reject_reason": reason, "attribution": drive.attribution, "drive_key": schema.drive_key(drive.drive_id),
+        }], schema=schema.STORED_DRIVE_INPUTS.polars_schema))
         con.execute("commit")
     except BaseException:
         con.execute("rollback")

@@ -3,6 +3,7 @@ and coverage samples, as Polars frames for ``logiq_sql.storage.store``."""
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 
 import duckdb
@@ -92,12 +93,18 @@ def coverage_samples(s: Scenario, metrics: pl.DataFrame) -> pl.DataFrame:
     return pl.concat(frames) if frames else pl.DataFrame(schema=COVERAGE_SAMPLES.polars_schema)
 
 
+def is_phase(table: str) -> bool:
+    """A phase step's table: in a match only its rows where the phase holds are kept, for the runs and the KPIs
+    read no others (explain computes every row, to say which condition failed)."""
+    return re.fullmatch(r"phase_\d+", table) is not None
+
+
 def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> ScenarioOutput:
     """The scenario's phases, matches, KPIs and coverage samples on the batch's relations."""
     engine.owners = (s.name,)
     with stage(f"scenario {s.name}"):
         for table, rel in phase_steps(s):
-            engine.materialise(table, rel, values)
+            engine.materialise(table, rel, values, holding=is_phase(table))
         engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
         matches = engine.frame("scenario_matches")
     metrics = matches.select("match_id")

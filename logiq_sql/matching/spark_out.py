@@ -32,7 +32,7 @@ import polars as pl
 
 from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
-from logiq_sql.matching.runner import coverage_buckets
+from logiq_sql.matching.runner import coverage_buckets, is_phase
 from logiq_sql.spec.contract import sample_columns
 from logiq_sql.spec.plan import IDENTIFY_QUERY, SAMPLES_QUERY, phase_steps
 from logiq_sql.spec.scenario import Scenario
@@ -110,7 +110,7 @@ class SparkResults:
         engine, spark = self.engine, self.spark
         with stage(f"scenario {s.name}"):
             for table, rel in phase_steps(s):
-                engine.materialise(table, rel, values)
+                engine.materialise(table, rel, values, holding=is_phase(table))
             engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
         matches = spark.table("scenario_matches")
         with stage("kpis"):

@@ -72,10 +72,11 @@ TIME_LABEL = "t (s of the drive)"
 # (same_lane and adjacent_side are not shown), so gap, headway and TTC are those matching computed
 RELATION_INPUTS = {
     "tracks": "select * from pair_tracks",
-    "ego_lanes": ("select distinct t.drive_id, t.actor_id as ego_id, t.frame, cast(null as varchar) as lane_id "
+    "ego_lanes": ("select distinct t.drive_id, t.actor_id as ego_id, t.frame, cast(null as varchar) as lane_id, "
+                  "cast(null as bigint) as lane_run, t.drive_key, t.actor_key as ego_key "
                   "from pair_tracks as t inner join replay_windows as w on t.drive_id = w.drive_id "
                   "and t.actor_id = w.ego_id"),
-    "actor_lanes": ("select drive_id, actor_id, frame, cast(null as varchar) as lane_id, "
+    "actor_lanes": ("select drive_key, actor_key, drive_id, actor_id, frame, cast(null as varchar) as lane_id, "
                     "cast(null as double) as lane_dist_m from pair_tracks where false"),
     "lane_neighbours": ("select cast(null as varchar) as map_id, cast(null as varchar) as lane_id, "
                         "cast(null as varchar) as near_lane_id, cast(null as varchar) as side where false"),

@@ -28,7 +28,7 @@ from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, arg
 from logiq_sql.core.sql import sql_literal
 
-INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES)
+INPUT_TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
 MARKER = "_logiq_sql_dataset"  # written at the top of a dataset: what attach and --engine spark check
 
 

@@ -157,7 +157,7 @@ STEP_CACHE = Table(
 )
 
 OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
-TABLES = (*schema.ALL_INPUT_TABLES, schema.TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
+TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
 
 
 DRIVES_VIEW = """
@@ -264,12 +264,37 @@ def create_all(con: duckdb.DuckDBPyConnection) -> None:
     """Every table and the drives view, with their comments: created where missing, new columns added."""
     for table in TABLES:
         create_table(con, table)
+    backfill_keys(con)
     con.execute(DRIVES_VIEW)
     con.execute("comment on view drives is " + sql_literal(
         "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
     inherited = {c.name: c.doc for c in schema.DRIVE_INPUTS.columns}
     for (col,) in con.execute("select column_name from duckdb_columns() where table_name = 'drives'").fetchall():
         con.execute(f"comment on column drives.{col} is {sql_literal(DRIVES_DOC.get(col) or inherited[col])}")
+
+
+def backfill_keys(con: duckdb.DuckDBPyConnection) -> None:
+    """A file written before ingest assigned integer keys gets them for its rows (the queries join on them)."""
+    drives = [r[0] for r in con.execute("select drive_id from drive_inputs where drive_key is null").fetchall()]
+    if not drives:
+        return
+    keys = pl.DataFrame({"drive_id": drives, "drive_key": [schema.drive_key(d) for d in drives]})
+    with registered(con, "_keys", keys):
+        con.execute("update drive_inputs as d set drive_key = k.drive_key from _keys as k "
+                    "where d.drive_id = k.drive_id")
+        con.execute("""
+            update tracks as t set drive_key = k.drive_key, actor_key = k.actor_key, row_key = k.row_key
+            from (
+                select r.drive_id, r.actor_id, r.frame, n.drive_key,
+                    dense_rank() over (partition by r.drive_id order by r.actor_id) as actor_key,
+                    row_number() over (partition by r.drive_id order by r.actor_id, r.frame) as row_key
+                from tracks as r inner join _keys as n on r.drive_id = n.drive_id
+            ) as k
+            where t.drive_id = k.drive_id and t.actor_id = k.actor_id and t.frame = k.frame""")
+        con.execute("""
+            update track_lanes as l set drive_key = t.drive_key, actor_key = t.actor_key, row_key = t.row_key
+            from tracks as t
+            where l.drive_key is null and l.drive_id = t.drive_id and l.actor_id = t.actor_id and l.frame = t.frame""")
 
 
 def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> None:

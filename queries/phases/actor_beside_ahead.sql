@@ -1,7 +1,7 @@
 -- phase: actor_beside_ahead (cut_in_ahead_of_ego, phase 1; logiq_sql's own scenario, not a LogIQ page)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes, drive_inputs, lane_line
+-- reads: relations, ego_lanes, drive_inputs, lane_line (joined and windowed on the integer keys)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -21,18 +21,15 @@ with
 ahead as (
     select
         r.*,
-        el.lane_run,
-        el.lane_id as ego_lane_now_id,
+        r.ego_lane_id as ego_lane_now_id,
         -- the first frame from this one on at which the actor is ahead in the ego's lane (a running min read
         -- backwards, up to the current row: a frame that ends at 1 preceding does not run on Polars). At the
         -- phase's frames the actor is beside, not in the lane, so it is the next one
         min(case when r.same_lane then r.frame end) over (
-            partition by r.drive_id, r.ego_id, r.actor_id order by r.frame desc
+            partition by r.drive_key, r.ego_key, r.actor_key order by r.frame desc
             rows between unbounded preceding and current row
         ) as entry_frame
     from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
     where r.dx_m > 0
 ),
 
@@ -42,9 +39,9 @@ checked as (
         a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane
     from ahead as a
     inner join drive_inputs as d
-        on a.drive_id = d.drive_id
+        on a.drive_key = d.drive_key
     left join ego_lanes as entry
-        on a.drive_id = entry.drive_id and a.ego_id = entry.ego_id and a.entry_frame = entry.frame
+        on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
     left join lane_line as line
         on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
 )

@@ -1,7 +1,7 @@
 -- phase: cyclist_close_to_moving_sut
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor that is not a vehicle kind (relations
 --        keeps those within object_relation_range): the phase contract (docs/scenarios.md)
--- reads: relations, tracks
+-- reads: relations
 -- params: $sut_minimal_speed_mps, $min_distance_from_cyclist_m, $max_distance_from_cyclist_m
 --
 -- Conditions (holds = all of them):
@@ -17,17 +17,15 @@ select
     r.frame,
     r.t_s,
     0 as segment,
-    coalesce(e.speed_mps >= $sut_minimal_speed_mps, false) as ego_moving,
+    coalesce(r.ego_speed_mps >= $sut_minimal_speed_mps, false) as ego_moving,
     r.actor_kind = 'cyclist' as actor_is_cyclist,
     r.box_distance_m >= $min_distance_from_cyclist_m
         and r.box_distance_m <= $max_distance_from_cyclist_m as distance_in_range,
-    coalesce(e.speed_mps >= $sut_minimal_speed_mps, false) and r.actor_kind = 'cyclist'
+    coalesce(r.ego_speed_mps >= $sut_minimal_speed_mps, false) and r.actor_kind = 'cyclist'
         and r.box_distance_m >= $min_distance_from_cyclist_m
         and r.box_distance_m <= $max_distance_from_cyclist_m as holds,
-    e.speed_mps as ego_speed_mps,
+    r.ego_speed_mps,
     r.actor_kind,
     r.box_distance_m
 from relations as r
-inner join tracks as e
-    on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
 where r.actor_kind not in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')

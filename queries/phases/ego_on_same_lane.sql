@@ -1,7 +1,7 @@
 -- phase: ego_on_same_lane (sut_cut_out, phase 1)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes, drive_inputs, lane_successors
+-- reads: relations, ego_lanes, drive_inputs, lane_successors (joined on the integer keys drive_key, ego_key)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
 --
 -- Conditions (holds = all of them):
@@ -36,20 +36,23 @@ turned_onto as (
 
 run_lanes as (
     -- the lanes the ego drives in each lane run
-    select distinct drive_id, ego_id, lane_run, lane_id
+    select distinct drive_key, ego_key, lane_run, lane_id
     from ego_lanes
     where lane_id is not null
 ),
 
 ahead as (
     select
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run,
-        el.lane_id as ego_lane_id,
+        r.lane_run,
+        r.ego_lane_id,
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
@@ -62,14 +65,12 @@ ahead as (
         -- whatever the lane labels say, the ego follows it, so it stands between the ego and those further on
         r.lat_gap_m = 0 and (r.same_lane or r.adjacent_side is not null) as actor_in_line
     from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
     inner join drive_inputs as d
-        on r.drive_id = d.drive_id
+        on r.drive_key = d.drive_key
     left join turned_onto as turn
-        on d.map_id = turn.map_id and el.lane_id = turn.lane_id and r.actor_lane_id = turn.turn_lane_id
+        on d.map_id = turn.map_id and r.ego_lane_id = turn.lane_id and r.actor_lane_id = turn.turn_lane_id
     left join run_lanes as driven
-        on el.drive_id = driven.drive_id and el.ego_id = driven.ego_id and el.lane_run = driven.lane_run
+        on r.drive_key = driven.drive_key and r.ego_key = driven.ego_key and r.lane_run = driven.lane_run
         and r.actor_lane_id = driven.lane_id
     where r.dx_m > 0
 ),
@@ -77,43 +78,43 @@ ahead as (
 nearest_gap as (
     -- the road user the ego follows is the one right ahead of it in the lane: the least gap per frame (grouped
     -- minima rather than a ranking window: a hash aggregate over the few rows in lane, not a sort of them all)
-    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    select drive_key, ego_key, frame, min(lon_gap_m) as lon_gap_m
     from ahead
     where actor_ahead and actor_in_ego_lane
-    group by drive_id, ego_id, frame
+    group by drive_key, ego_key, frame
 ),
 
 nearest as (
     -- of several at that least gap, the smallest actor_id
-    select a.drive_id, a.ego_id, a.frame, min(a.actor_id) as actor_id
+    select a.drive_key, a.ego_key, a.frame, min(a.actor_key) as actor_key
     from ahead as a
     inner join nearest_gap as g
-        on a.drive_id = g.drive_id and a.ego_id = g.ego_id and a.frame = g.frame and a.lon_gap_m = g.lon_gap_m
+        on a.drive_key = g.drive_key and a.ego_key = g.ego_key and a.frame = g.frame and a.lon_gap_m = g.lon_gap_m
     where a.actor_ahead and a.actor_in_ego_lane
-    group by a.drive_id, a.ego_id, a.frame
+    group by a.drive_key, a.ego_key, a.frame
 ),
 
 in_line_gap as (
     -- the nearest road user straight in front of the ego, in its lane or the one beside
-    select drive_id, ego_id, frame, min(lon_gap_m) as lon_gap_m
+    select drive_key, ego_key, frame, min(lon_gap_m) as lon_gap_m
     from ahead
     where actor_ahead and actor_in_line
-    group by drive_id, ego_id, frame
+    group by drive_key, ego_key, frame
 ),
 
 ranked as (
     select
         a.*,
-        n.actor_id is not null
+        n.actor_key is not null
             -- one off to the side of the ego and heading more across the ego's way than along it (round a bend)
             -- is behind whoever is nearer and straight in front of the ego
             and (a.lat_gap_m = 0 or abs(a.rel_heading_rad) <= pi() / 4 or l.lon_gap_m is null
                 or l.lon_gap_m >= a.lon_gap_m) as is_nearest
     from ahead as a
     left join nearest as n
-        on a.drive_id = n.drive_id and a.ego_id = n.ego_id and a.frame = n.frame and a.actor_id = n.actor_id
+        on a.drive_key = n.drive_key and a.ego_key = n.ego_key and a.frame = n.frame and a.actor_key = n.actor_key
     left join in_line_gap as l
-        on a.drive_id = l.drive_id and a.ego_id = l.ego_id and a.frame = l.frame
+        on a.drive_key = l.drive_key and a.ego_key = l.ego_key and a.frame = l.frame
 ),
 
 conditions as (
@@ -134,7 +135,10 @@ conditions as (
         ego_lane_id,
         actor_lane_id,
         lon_gap_m,
-        time_headway_s
+        time_headway_s,
+        drive_key,
+        ego_key,
+        actor_key
     from ranked
 )
 

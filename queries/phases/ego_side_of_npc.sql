@@ -23,19 +23,22 @@ with
 run_changes as (
     -- the side of the lane change that began each lane run (NULL for the first run), and when
     select
-        drive_id,
-        ego_id,
+        drive_key,
+        ego_key,
         lane_run,
         max(lane_change_side) as change_side,
         min(t_s) as change_s
     from ego_lanes
-    group by drive_id, ego_id, lane_run
+    group by drive_key, ego_key, lane_run
 ),
 
 near as (
     -- the frames at which the actor is beside the ego or in its lane, with the ego's lane run (one pass over the
     -- relations for the three uses below)
     select
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
         r.drive_id,
         r.ego_id,
         r.actor_id,
@@ -45,39 +48,37 @@ near as (
         r.adjacent_side,
         r.same_lane,
         r.actor_lane_id,
-        el.lane_run,
-        el.lane_id as ego_lane_id
+        r.lane_run,
+        r.ego_lane_id
     from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
     where r.adjacent_side is not null or r.same_lane
 ),
 
 first_beside as (
     -- per lane run of the ego, actor and side: the first time the actor is beside the ego on that side
     select
-        drive_id,
-        ego_id,
-        actor_id,
+        drive_key,
+        ego_key,
+        actor_key,
         lane_run,
         adjacent_side,
         min(t_s) as first_s
     from near
     where adjacent_side is not null
-    group by drive_id, ego_id, actor_id, lane_run, adjacent_side
+    group by drive_key, ego_key, actor_key, lane_run, adjacent_side
 ),
 
 first_in_lane as (
     -- per lane run of the ego and actor: the first time the actor is in the ego's (new) lane
     select
-        drive_id,
-        ego_id,
-        actor_id,
+        drive_key,
+        ego_key,
+        actor_key,
         lane_run,
         min(t_s) as first_s
     from near
     where same_lane
-    group by drive_id, ego_id, actor_id, lane_run
+    group by drive_key, ego_key, actor_key, lane_run
 ),
 
 conditions as (
@@ -98,15 +99,18 @@ conditions as (
         c.change_side,
         f.first_s - c.change_s as beside_after_change_s,
         n.ego_lane_id,
-        n.actor_lane_id
+        n.actor_lane_id,
+        n.drive_key,
+        n.ego_key,
+        n.actor_key
     from near as n
     inner join run_changes as c
-        on n.drive_id = c.drive_id and n.ego_id = c.ego_id and n.lane_run = c.lane_run
+        on n.drive_key = c.drive_key and n.ego_key = c.ego_key and n.lane_run = c.lane_run
     left join first_beside as f
-        on n.drive_id = f.drive_id and n.ego_id = f.ego_id and n.actor_id = f.actor_id and n.lane_run = f.lane_run
+        on n.drive_key = f.drive_key and n.ego_key = f.ego_key and n.actor_key = f.actor_key and n.lane_run = f.lane_run
         and n.adjacent_side = f.adjacent_side
     left join first_in_lane as i
-        on n.drive_id = i.drive_id and n.ego_id = i.ego_id and n.actor_id = i.actor_id and n.lane_run = i.lane_run
+        on n.drive_key = i.drive_key and n.ego_key = i.ego_key and n.actor_key = i.actor_key and n.lane_run = i.lane_run
 )
 
 select

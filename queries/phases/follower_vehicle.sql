@@ -2,7 +2,8 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes, tracks, drive_inputs, lane_successors
+-- reads: relations, ego_lanes, drive_inputs, lane_successors (joined on the integer keys drive_key, ego_key,
+--        actor_key)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -37,27 +38,27 @@ with
 road as (
     -- lanes the ego drove in during each lane run: when it entered and when it last was in each
     select
-        drive_id,
-        ego_id,
+        drive_key,
+        ego_key,
         lane_run,
         lane_id,
         min(t_s) as first_s,
         max(t_s) as last_s
     from ego_lanes
     where lane_id is not null
-    group by drive_id, ego_id, lane_run, lane_id
+    group by drive_key, ego_key, lane_run, lane_id
 ),
 
 run_first_lane as (
     -- the lane each lane run began in (its first frame in a lane)
-    select drive_id, ego_id, lane_run, lane_id
+    select drive_key, ego_key, lane_run, lane_id
     from (
         select
-            drive_id,
-            ego_id,
+            drive_key,
+            ego_key,
             lane_run,
             lane_id,
-            row_number() over (partition by drive_id, ego_id, lane_run order by frame) as nth
+            row_number() over (partition by drive_key, ego_key, lane_run order by frame) as nth
         from ego_lanes
         where lane_id is not null
     ) as numbered
@@ -66,138 +67,138 @@ run_first_lane as (
 
 behind as (
     select
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
         r.drive_id,
         r.ego_id,
         r.actor_id,
         r.frame,
         r.t_s,
-        el.lane_run,
-        el.lane_id as ego_lane_id,
+        r.lane_run,
+        r.ego_lane_id,
         r.actor_lane_id,
         r.actor_kind,
         r.lon_gap_m,
         greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) as follow_gap_m,
-        case when a.speed_mps > 0 then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / a.speed_mps end
+        case when r.actor_speed_mps > 0
+            then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / r.actor_speed_mps end
             as follow_headway_s,
         r.lon_gap_m > 0 as actor_behind,
         coalesce(
-            r.actor_lane_id = el.lane_id
+            r.actor_lane_id = r.ego_lane_id
             or road.lane_id is not null
-            or (r.same_lane and fl.lane_id = el.lane_id),
+            or (r.same_lane and fl.lane_id = r.ego_lane_id),
             false
         ) as actor_on_ego_road,
         -- when the ego entered the lane of its road the actor is on, if it has left that lane and its successor
         -- since (it is past a fork)
-        case when road.lane_id is not null and r.actor_lane_id <> el.lane_id and next_lane.lane_id is null
+        case when road.lane_id is not null and r.actor_lane_id <> r.ego_lane_id and next_lane.lane_id is null
             then road.first_s end as left_lane_first_s
     from relations as r
-    inner join ego_lanes as el
-        on r.drive_id = el.drive_id and r.ego_id = el.ego_id and r.frame = el.frame
-    inner join tracks as a
-        on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
     left join run_first_lane as fl
-        on el.drive_id = fl.drive_id and el.ego_id = fl.ego_id and el.lane_run = fl.lane_run
+        on r.drive_key = fl.drive_key and r.ego_key = fl.ego_key and r.lane_run = fl.lane_run
     left join road
-        on r.drive_id = road.drive_id and r.ego_id = road.ego_id and el.lane_run = road.lane_run
+        on r.drive_key = road.drive_key and r.ego_key = road.ego_key and r.lane_run = road.lane_run
         and r.actor_lane_id = road.lane_id
         and road.first_s <= r.t_s
         and road.last_s >= r.t_s - $same_road_limit_s
     left join drive_inputs as d
-        on r.drive_id = d.drive_id
+        on r.drive_key = d.drive_key
     left join lane_successors as next_lane
-        on d.map_id = next_lane.map_id and r.actor_lane_id = next_lane.lane_id and el.lane_id = next_lane.successor_id
+        on d.map_id = next_lane.map_id and r.actor_lane_id = next_lane.lane_id and r.ego_lane_id = next_lane.successor_id
     where r.dx_m < 0
 ),
 
 left_lanes as (
     -- actors behind the ego on a lane of its road that the ego has left: the lane, and when the actor was last on it
-    select drive_id, ego_id, actor_id, actor_lane_id, left_lane_first_s, max(t_s) as last_on_lane_s
+    select drive_key, ego_key, actor_key, actor_lane_id, left_lane_first_s, max(t_s) as last_on_lane_s
     from behind
     where left_lane_first_s is not null
-    group by drive_id, ego_id, actor_id, actor_lane_id, left_lane_first_s
+    group by drive_key, ego_key, actor_key, actor_lane_id, left_lane_first_s
 ),
 
 diverging as (
     -- of those, the actors that, within same_road_limit of leaving that lane, drive on into one of its successors
     -- but never into a lane the ego entered after it: bound for another exit (the pair's own relation rows: the actor
     -- is near the ego meanwhile). An actor that leaves by a lane change is not bound elsewhere by this rule
-    select l.drive_id, l.ego_id, l.actor_id, l.actor_lane_id
+    select l.drive_key, l.ego_key, l.actor_key, l.actor_lane_id
     from left_lanes as l
     inner join drive_inputs as d
-        on l.drive_id = d.drive_id
+        on l.drive_key = d.drive_key
     inner join relations as r
-        on l.drive_id = r.drive_id and l.ego_id = r.ego_id and l.actor_id = r.actor_id
+        on l.drive_key = r.drive_key and l.ego_key = r.ego_key and l.actor_key = r.actor_key
         and r.t_s > l.last_on_lane_s and r.t_s <= l.last_on_lane_s + $same_road_limit_s
         and r.actor_lane_id <> l.actor_lane_id
     left join lane_successors as onward
         on d.map_id = onward.map_id and l.actor_lane_id = onward.lane_id and r.actor_lane_id = onward.successor_id
-    left join (select distinct drive_id, ego_id, lane_id, first_s from road) as later
-        on r.drive_id = later.drive_id and r.ego_id = later.ego_id and r.actor_lane_id = later.lane_id
+    left join (select distinct drive_key, ego_key, lane_id, first_s from road) as later
+        on r.drive_key = later.drive_key and r.ego_key = later.ego_key and r.actor_lane_id = later.lane_id
         and later.first_s > l.left_lane_first_s
-    group by l.drive_id, l.ego_id, l.actor_id, l.actor_lane_id
+    group by l.drive_key, l.ego_key, l.actor_key, l.actor_lane_id
     having max(case when onward.lane_id is not null then 1 else 0 end) = 1
         and max(case when later.lane_id is not null then 1 else 0 end) = 0
 ),
 
 leaving as (
     -- lanes that turn off the ego's road: the direct successors of the lanes it drove in each lane run
-    select road.drive_id, road.ego_id, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
+    select road.drive_key, road.ego_key, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
     from road
     inner join drive_inputs as d
-        on road.drive_id = d.drive_id
+        on road.drive_key = d.drive_key
     inner join lane_successors as s
         on d.map_id = s.map_id and road.lane_id = s.lane_id
 ),
 
 turning_off as (
     -- road users behind the ego on a lane leaving its road (within same_road_limit, as for the road itself)
-    select b.drive_id, b.ego_id, b.frame, min(b.follow_gap_m) as follow_gap_m
+    select b.drive_key, b.ego_key, b.frame, min(b.follow_gap_m) as follow_gap_m
     from behind as b
     inner join leaving as lv
-        on b.drive_id = lv.drive_id and b.ego_id = lv.ego_id and b.lane_run = lv.lane_run
+        on b.drive_key = lv.drive_key and b.ego_key = lv.ego_key and b.lane_run = lv.lane_run
         and b.actor_lane_id = lv.lane_id
         and lv.first_s <= b.t_s
         and lv.last_s >= b.t_s - $same_road_limit_s
     where b.actor_behind and not b.actor_on_ego_road
-    group by b.drive_id, b.ego_id, b.frame
+    group by b.drive_key, b.ego_key, b.frame
 ),
 
 nearest_gap as (
     -- the follower is the road user right behind the ego on its road, nobody else between them: the least gap
     -- per frame (grouped minima rather than a ranking window: a hash aggregate over the few rows on the road,
     -- not a sort of them all), a road user turning off the road counted as between
-    select drive_id, ego_id, frame, min(follow_gap_m) as follow_gap_m
+    select drive_key, ego_key, frame, min(follow_gap_m) as follow_gap_m
     from (
-        select drive_id, ego_id, frame, follow_gap_m
+        select drive_key, ego_key, frame, follow_gap_m
         from behind
         where actor_behind and actor_on_ego_road
         union all
-        select drive_id, ego_id, frame, follow_gap_m
+        select drive_key, ego_key, frame, follow_gap_m
         from turning_off
     ) as between_ego_and_follower
-    group by drive_id, ego_id, frame
+    group by drive_key, ego_key, frame
 ),
 
 nearest as (
     -- of several at that least gap, the smallest actor_id
-    select b.drive_id, b.ego_id, b.frame, min(b.actor_id) as actor_id
+    select b.drive_key, b.ego_key, b.frame, min(b.actor_key) as actor_key
     from behind as b
     inner join nearest_gap as g
-        on b.drive_id = g.drive_id and b.ego_id = g.ego_id and b.frame = g.frame and b.follow_gap_m = g.follow_gap_m
+        on b.drive_key = g.drive_key and b.ego_key = g.ego_key and b.frame = g.frame and b.follow_gap_m = g.follow_gap_m
     where b.actor_behind and b.actor_on_ego_road
-    group by b.drive_id, b.ego_id, b.frame
+    group by b.drive_key, b.ego_key, b.frame
 ),
 
 ranked as (
     select
         b.*,
-        n.actor_id is not null as is_nearest,
-        dv.actor_id is null as actor_path_follows_ego
+        n.actor_key is not null as is_nearest,
+        dv.actor_key is null as actor_path_follows_ego
     from behind as b
     left join nearest as n
-        on b.drive_id = n.drive_id and b.ego_id = n.ego_id and b.frame = n.frame and b.actor_id = n.actor_id
+        on b.drive_key = n.drive_key and b.ego_key = n.ego_key and b.frame = n.frame and b.actor_key = n.actor_key
     left join diverging as dv
-        on b.drive_id = dv.drive_id and b.ego_id = dv.ego_id and b.actor_id = dv.actor_id
+        on b.drive_key = dv.drive_key and b.ego_key = dv.ego_key and b.actor_key = dv.actor_key
         and b.actor_lane_id = dv.actor_lane_id and b.left_lane_first_s is not null
 ),
 
@@ -222,7 +223,10 @@ conditions as (
         actor_lane_id,
         lon_gap_m,
         follow_gap_m,
-        follow_headway_s
+        follow_headway_s,
+        drive_key,
+        ego_key,
+        actor_key
     from ranked
 )
 

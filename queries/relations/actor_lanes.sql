@@ -1,5 +1,6 @@
 -- relations: actor_lanes
--- grain: one row per (drive_id, actor_id, frame) of the run's drives that lies in a lane: its best lane
+-- grain: one row per (drive_id, actor_id, frame) of the run's drives that lies in a lane: its best lane, with
+--        the row's integer keys (drive_key, actor_key)
 -- reads: track_lanes (every lane within 3 m of each track row, from shapely at ingest), run_drives
 -- params: $lane_calculation_tolerance_length_m
 --
@@ -7,6 +8,8 @@
 -- and its heading is within 90 degrees of the lane direction. Of several such lanes the best is the
 -- nearest (0 when inside), then the one best aligned with the heading, then the smallest id.
 select
+    drive_key,
+    actor_key,
     drive_id,
     actor_id,
     frame,
@@ -16,7 +19,7 @@ from (
     select
         *,
         row_number() over (
-            partition by drive_id, actor_id, frame
+            partition by drive_key, row_key
             order by dist_m, abs(heading_diff_rad), lane_id
         ) as rank_in_frame
     from track_lanes

@@ -24,19 +24,23 @@
 --                     the lane its centre is in, as a car behind it at the same offset is
 --   lane_change_side  the side the ego moved to, on the frame of the change (the first frame of a lane run)
 --   lane_run          how many lane changes the ego made up to this frame
+--   drive_key, ego_key  integer keys of the drive and the ego (tracks.drive_key, actor_key): the steps join and
+--                       window on them; drive_id and ego_id are for people
 with
 
 ego_lane_distances as (
     -- the egos' rows of track_lanes (every lane within 3 m), picked out once: old_lane looks up the old lane's
     -- distance in them
-    select tl.drive_id, tl.actor_id as ego_id, tl.frame, tl.lane_id, tl.dist_m
+    select tl.drive_key, tl.actor_key as ego_key, tl.frame, tl.lane_id, tl.dist_m
     from track_lanes as tl
     inner join egos as e
-        on tl.drive_id = e.drive_id and tl.actor_id = e.ego_id
+        on tl.drive_key = e.drive_key and tl.actor_key = e.ego_key
 ),
 
 ego_rows as (
     select
+        t.drive_key,
+        t.actor_key as ego_key,
         t.drive_id,
         t.actor_id as ego_id,
         t.frame,
@@ -44,45 +48,45 @@ ego_rows as (
         al.lane_id
     from tracks as t
     inner join egos as e
-        on t.drive_id = e.drive_id and t.actor_id = e.ego_id
+        on t.drive_key = e.drive_key and t.actor_key = e.ego_key
     left join actor_lanes as al
-        on t.drive_id = al.drive_id and t.actor_id = al.actor_id and t.frame = al.frame
+        on t.drive_key = al.drive_key and t.actor_key = al.actor_key and t.frame = al.frame
 ),
 
 islands as (
     select
         *,
         frame - row_number() over (
-            partition by drive_id, ego_id, coalesce(lane_id, '') order by frame
+            partition by drive_key, ego_key, coalesce(lane_id, '') order by frame
         ) as island
     from ego_rows
 ),
 
 runs as (
     select
-        drive_id,
-        ego_id,
+        drive_key,
+        ego_key,
         lane_id,
         island,
         min(frame) as run_start_frame,
         max(frame) as run_end_frame
     from islands
-    group by drive_id, ego_id, lane_id, island
+    group by drive_key, ego_key, lane_id, island
 ),
 
 runs_with_previous as (
     select
         *,
         -- the previous run ends at the ego's previous sample, however many frames are missing in between
-        lag(lane_id) over (partition by drive_id, ego_id order by run_start_frame) as previous_lane_id
+        lag(lane_id) over (partition by drive_key, ego_key order by run_start_frame) as previous_lane_id
     from runs
 ),
 
 transitions as (
     -- the ego's best lane becomes a lane beside the one it had: a lane change may be under way
     select
-        r.drive_id,
-        r.ego_id,
+        r.drive_key,
+        r.ego_key,
         d.map_id,
         r.run_start_frame as transition_frame,
         r.previous_lane_id as from_lane_id,
@@ -90,7 +94,7 @@ transitions as (
         n.side
     from runs_with_previous as r
     inner join drive_inputs as d
-        on r.drive_id = d.drive_id
+        on r.drive_key = d.drive_key
     inner join lane_neighbours as n
         on d.map_id = n.map_id and r.previous_lane_id = n.lane_id and r.lane_id = n.near_lane_id
 ),
@@ -100,24 +104,24 @@ last_transition as (
     -- so the running max of the frames that have one is the last of them (a running max and a join back run on
     -- every engine, where last_value(... ignore nulls) does not parse on Polars SQL)
     select
-        e.drive_id,
-        e.ego_id,
+        e.drive_key,
+        e.ego_key,
         e.frame,
         e.lane_id,
         max(tr.transition_frame) over (
-            partition by e.drive_id, e.ego_id order by e.frame rows between unbounded preceding and current row
+            partition by e.drive_key, e.ego_key order by e.frame rows between unbounded preceding and current row
         ) as transition_frame
     from ego_rows as e
     left join transitions as tr
-        on e.drive_id = tr.drive_id and e.ego_id = tr.ego_id and e.frame = tr.transition_frame
+        on e.drive_key = tr.drive_key and e.ego_key = tr.ego_key and e.frame = tr.transition_frame
 ),
 
 pending as (
     -- every ego frame with the last transition before it (over segment boundaries the best lane's id may
     -- change again without a new transition)
     select
-        lt.drive_id,
-        lt.ego_id,
+        lt.drive_key,
+        lt.ego_key,
         lt.frame,
         lt.lane_id,
         tr.map_id,
@@ -126,14 +130,14 @@ pending as (
         tr.side
     from last_transition as lt
     left join transitions as tr
-        on lt.drive_id = tr.drive_id and lt.ego_id = tr.ego_id and lt.transition_frame = tr.transition_frame
+        on lt.drive_key = tr.drive_key and lt.ego_key = tr.ego_key and lt.transition_frame = tr.transition_frame
 ),
 
 old_lane as (
     -- per frame after a transition: is the ego (back) in the lane it came from, and how far from it is it
     select
-        p.drive_id,
-        p.ego_id,
+        p.drive_key,
+        p.ego_key,
         p.frame,
         p.lane_id,
         p.transition_frame,
@@ -144,9 +148,9 @@ old_lane as (
     inner join lane_line as l
         on p.map_id = l.map_id and p.from_lane_id = l.lane_id
     left join ego_lane_distances as tl
-        on p.drive_id = tl.drive_id and p.ego_id = tl.ego_id and p.frame = tl.frame and l.line_lane_id = tl.lane_id
+        on p.drive_key = tl.drive_key and p.ego_key = tl.ego_key and p.frame = tl.frame and l.line_lane_id = tl.lane_id
     where p.transition_frame is not null
-    group by p.drive_id, p.ego_id, p.frame, p.lane_id, p.transition_frame, p.side
+    group by p.drive_key, p.ego_key, p.frame, p.lane_id, p.transition_frame, p.side
 ),
 
 changes as (
@@ -155,8 +159,8 @@ changes as (
     -- transition's frames, not a second reading of old_lane joined back (which Spark evaluated differently from
     -- DuckDB once nothing else read it)
     select
-        drive_id,
-        ego_id,
+        drive_key,
+        ego_key,
         transition_frame,
         side,
         min(frame) as frame
@@ -164,7 +168,7 @@ changes as (
         select
             *,
             min(case when back_in_old_lane = 1 and frame > transition_frame then frame end) over (
-                partition by drive_id, ego_id, transition_frame
+                partition by drive_key, ego_key, transition_frame
             ) as return_frame
         from old_lane
     ) as o
@@ -172,7 +176,7 @@ changes as (
         and (return_frame is null or frame < return_frame)
         and back_in_old_lane = 0
         and (old_lane_dist_m is null or old_lane_dist_m > $lane_calculation_tolerance_length_m)
-    group by drive_id, ego_id, transition_frame, side
+    group by drive_key, ego_key, transition_frame, side
 ),
 
 classed as (
@@ -181,33 +185,33 @@ classed as (
     -- they alternate: the first is a transition, the second its return, the third a transition again, ...
     select
         *,
-        row_number() over (partition by drive_id, ego_id, chain order by transition_frame) % 2 = 0 as is_return
+        row_number() over (partition by drive_key, ego_key, chain order by transition_frame) % 2 = 0 as is_return
     from (
         select
             *,
             sum(case when back then 0 else 1 end) over (
-                partition by drive_id, ego_id order by transition_frame
+                partition by drive_key, ego_key order by transition_frame
                 rows between unbounded preceding and current row
             ) as chain
         from (
             select
-                t.drive_id,
-                t.ego_id,
+                t.drive_key,
+                t.ego_key,
                 t.transition_frame,
                 coalesce(c.frame is null and l.line_lane_id is not null, false) as back
             from (
                 select
                     *,
-                    lag(transition_frame) over (partition by drive_id, ego_id order by transition_frame)
+                    lag(transition_frame) over (partition by drive_key, ego_key order by transition_frame)
                         as previous_frame,
-                    lag(from_lane_id) over (partition by drive_id, ego_id order by transition_frame)
+                    lag(from_lane_id) over (partition by drive_key, ego_key order by transition_frame)
                         as previous_from_lane_id
                 from transitions
             ) as t
             left join lane_line as l
                 on t.map_id = l.map_id and t.previous_from_lane_id = l.lane_id and t.to_lane_id = l.line_lane_id
             left join changes as c
-                on t.drive_id = c.drive_id and t.ego_id = c.ego_id and t.previous_frame = c.transition_frame
+                on t.drive_key = c.drive_key and t.ego_key = c.ego_key and t.previous_frame = c.transition_frame
         ) as flagged
     ) as chained
 ),
@@ -217,22 +221,24 @@ counted as (
     select c.*
     from changes as c
     inner join classed as k
-        on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.transition_frame = k.transition_frame
+        on c.drive_key = k.drive_key and c.ego_key = k.ego_key and c.transition_frame = k.transition_frame
     where not k.is_return
 )
 
 select
-    p.drive_id,
-    p.ego_id,
+    e.drive_id,
+    e.ego_id,
     p.frame,
     e.t_s,
     p.lane_id,
     c.side as lane_change_side,
     count(c.frame) over (
-        partition by p.drive_id, p.ego_id order by p.frame rows between unbounded preceding and current row
-    ) as lane_run
+        partition by p.drive_key, p.ego_key order by p.frame rows between unbounded preceding and current row
+    ) as lane_run,
+    p.drive_key,
+    p.ego_key
 from pending as p
 inner join ego_rows as e
-    on p.drive_id = e.drive_id and p.ego_id = e.ego_id and p.frame = e.frame
+    on p.drive_key = e.drive_key and p.ego_key = e.ego_key and p.frame = e.frame
 left join counted as c
-    on p.drive_id = c.drive_id and p.ego_id = c.ego_id and p.frame = c.transition_frame
+    on p.drive_key = c.drive_key and p.ego_key = c.ego_key and p.frame = c.transition_frame

@@ -1,5 +1,6 @@
 -- relations: egos
--- grain: one row per (drive_id, ego_id): the actors that play the SUT in this run
+-- grain: one row per (drive_id, ego_id): the actors that play the SUT in this run, with their integer keys
+--        (drive_key, ego_key: the ego's actor_key) that the later steps join on
 -- reads: tracks, drive_inputs, run_drives
 -- params: $ego_mode, $ego_every, $ego_actor_ids_csv, $ego_kinds_csv
 --
@@ -16,7 +17,9 @@ with
 candidates as (
     select distinct
         t.drive_id,
+        t.drive_key,
         t.actor_id,
+        t.actor_key,
         t.is_ego,
         t.kind,
         d.ego_actor_id,
@@ -32,13 +35,15 @@ candidates as (
 numbered as (
     select
         *,
-        row_number() over (partition by drive_id, can_be_sut order by actor_id) as sut_number
+        row_number() over (partition by drive_key, can_be_sut order by actor_key) as sut_number
     from candidates
 )
 
 select distinct
     drive_id,
-    actor_id as ego_id
+    actor_id as ego_id,
+    drive_key,
+    actor_key as ego_key
 from numbered
 where ($ego_mode = 'recorded' and is_ego)
     or ($ego_mode = 'auto' and (is_ego or (ego_actor_id is null and can_be_sut)))

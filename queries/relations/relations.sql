@@ -4,6 +4,9 @@
 -- reads: egos, tracks, ego_lanes, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps, $relation_kinds_csv
 --
+-- Joined on the integer keys ingest assigns (schema.TRACK_KEYS), which each row carries beside the ids:
+--   drive_key, ego_key, actor_key   integer keys of the drive, the ego and the actor (tracks.drive_key, actor_key)
+--
 -- Pairs are kept while the centres are at most relation_range apart for vehicle kinds, and at most
 -- object_relation_range apart for every other kind (people, cyclists, cones): close-object scenarios look
 -- within metres, lane-following ones up to a 5 s headway.
@@ -22,6 +25,9 @@
 --   lat_gap_m           side-to-side gap along the ego y axis, same rule
 --   box_distance_m      closest distance between the two boxes, 0 when they overlap (separating-axis test);
 --                       otherwise the least corner-to-box distance over the 8 corners (exact for rectangles)
+--   ego_lane_id         the ego's lane (ego_lanes.lane_id), lane_run its lane run (ego_lanes.lane_run)
+--   ego_speed_mps, actor_speed_mps  the two speeds (tracks.speed_mps): the phases read them from here, not
+--                       from tracks
 --   same_lane           the actor's lane is the ego's lane, or a lane that continues it (lane_line), or one of the
 --                       two centres lies inside the other's lane (where lanes overlap, at a fork)
 --   adjacent_side       'left'/'right' when the actor's lane is beside the ego's lane (lane_neighbours) and the
@@ -50,15 +56,19 @@ ego as (
     select
         t.*,
         el.lane_id as ego_lane_id,
+        el.lane_run,
         cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
-        on t.drive_id = el.drive_id and t.actor_id = el.ego_id and t.frame = el.frame
+        on t.drive_key = el.drive_key and t.actor_key = el.ego_key and t.frame = el.frame
     cross join (select -1 as d union all select 0 as d union all select 1 as d) as n
 ),
 
 pairs as (
     select
+        e.drive_key,
+        e.actor_key as ego_key,
+        a.actor_key,
         e.drive_id,
         e.actor_id as ego_id,
         a.actor_id,
@@ -66,6 +76,7 @@ pairs as (
         e.frame,
         e.t_s,
         e.ego_lane_id,
+        e.lane_run,
         e.speed_mps as ego_speed_mps,
         e.accel_mps2 as ego_accel_mps2,
         e.length_m as ego_length_m,
@@ -90,10 +101,10 @@ pairs as (
         from tracks
         where instr($relation_kinds_csv, ',' || kind || ',') > 0
     ) as a
-        on e.drive_id = a.drive_id
+        on e.drive_key = a.drive_key
         and e.frame = a.frame
         and e.band = a.band
-        and e.actor_id <> a.actor_id
+        and e.actor_key <> a.actor_key
         and (a.x_m - e.x_m) * (a.x_m - e.x_m) + (a.y_m - e.y_m) * (a.y_m - e.y_m) <= a.range_sq_m2
 ),
 
@@ -197,19 +208,19 @@ lane_pairs as (
         beside.side as beside_side
     from measured as m
     inner join drive_inputs as d
-        on m.drive_id = d.drive_id
+        on m.drive_key = d.drive_key
     left join actor_lanes as al
-        on m.drive_id = al.drive_id and m.actor_id = al.actor_id and m.frame = al.frame
+        on m.drive_key = al.drive_key and m.actor_key = al.actor_key and m.frame = al.frame
     left join lane_neighbours as beside
         on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
     left join lane_line as line
         on d.map_id = line.map_id and m.ego_lane_id = line.lane_id and al.lane_id = line.line_lane_id
     left join track_lanes as actor_inside
-        on m.drive_id = actor_inside.drive_id and m.actor_id = actor_inside.actor_id
+        on m.drive_key = actor_inside.drive_key and m.actor_key = actor_inside.actor_key
         and m.frame = actor_inside.frame and m.ego_lane_id = actor_inside.lane_id and actor_inside.dist_m = 0
         and abs(actor_inside.heading_diff_rad) < pi() / 2
     left join track_lanes as ego_inside
-        on m.drive_id = ego_inside.drive_id and m.ego_id = ego_inside.actor_id
+        on m.drive_key = ego_inside.drive_key and m.ego_key = ego_inside.actor_key
         and m.frame = ego_inside.frame and al.lane_id = ego_inside.lane_id and ego_inside.dist_m = 0
         and abs(ego_inside.heading_diff_rad) < pi() / 2
 ),
@@ -246,11 +257,14 @@ select
     lat_gap_m,
     case when boxes_overlap then 0.0 else corner_distance_m end as box_distance_m,
     ego_lane_id,
+    lane_run,
     actor_lane_id,
     same_lane,
     adjacent_side,
     case when dy_m >= 0 then 'left' else 'right' end as side,
     closing_speed_mps,
+    ego_speed_mps,
+    actor_speed_mps,
     case
         when dx_m < 0 and actor_speed_mps > 0 then lon_gap_m / actor_speed_mps
         when dx_m >= 0 and ego_speed_mps > 0 then lon_gap_m / ego_speed_mps
@@ -269,5 +283,8 @@ select
         when root_plus_s > 0 and root_minus_s > 0 then least(root_plus_s, root_minus_s)
         when root_plus_s > 0 then root_plus_s
         when root_minus_s > 0 then root_minus_s
-    end as mttc_s
+    end as mttc_s,
+    drive_key,
+    ego_key,
+    actor_key
 from mttc_roots

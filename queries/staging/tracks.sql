@@ -2,7 +2,7 @@
 -- grain: one row per (drive_id, actor_id, frame), canonical columns, kinematics completed
 -- reads: tracks_raw (a reader's rows in (drive_id, actor_id, frame) order, with track_no the same for every
 --        row of one (drive_id, actor_id) and different from its neighbours'; heading_rad, speed_mps, accel_mps2
---        may be NULL)
+--        may be NULL; drive_key, actor_key, row_key: the integer keys ingest assigns, schema.TRACK_KEYS)
 -- params: none
 --
 -- What is derived, only where the source left it NULL:
@@ -133,5 +133,8 @@ select
             )
     ) as accel_mps2,
     length_m,
-    width_m
+    width_m,
+    drive_key,
+    actor_key,
+    row_key
 from accel_window

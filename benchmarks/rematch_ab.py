@@ -1,0 +1,78 @@
+"""Re-match one ingested file with two versions of the code, alternately, in one run: the CPU seconds of each
+and their ratio (on a shared machine separate benchmark runs differ more than a change does).
+
+    python -m benchmarks.rematch_ab --db benchmarks/work/S/bench.duckdb --base main --rounds 3
+
+``--base`` is a git revision: its tree is extracted to a temporary folder and run with PYTHONPATH set to it;
+the other version is this checkout. Each round runs ``match --force`` (every drive reruns) with each version
+in a child process of its own, on copies of the file, and reads the child's CPU seconds (all threads) and wall
+time around the call. The file must have been ingested by the newer version (an older one ignores the columns
+it does not know). Prints the medians and base / this as the speed-up; checks both give the same matches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CHILD = """
+import json, resource, sys, time
+from logiq_sql import match
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+start, c = time.perf_counter(), cpu()
+match(sys.argv[1], ego=sys.argv[2], force=True)
+wall, used = time.perf_counter() - start, cpu() - c
+import duckdb
+with duckdb.connect(sys.argv[1], read_only=True) as con:
+    matches = con.execute("select md5(string_agg(match_id, ',' order by match_id)) from matches").fetchone()[0]
+print(json.dumps({"wall_s": wall, "cpu_s": used, "matches": matches}))
+"""
+
+
+def run(code: Path, db: Path, ego: str) -> dict[str, float]:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego], check=True, capture_output=True, text=True,
+                         env={"PYTHONPATH": str(code), "PATH": str(Path(sys.executable).parent)}, cwd=code)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--db", type=Path, required=True, help="an ingested DuckDB file (copied, never changed)")
+    parser.add_argument("--base", default="main", help="git revision to compare with (default main)")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--ego", default="every:10")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
+        base = Path(tmp) / "base"
+        base.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True, capture_output=True)
+        subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+        versions = {args.base: base, "this": ROOT}
+        times: dict[str, list[dict[str, float]]] = {name: [] for name in versions}
+        for i in range(args.rounds):
+            for name, code in versions.items():
+                copy = Path(tmp) / f"{name.replace('/', '_')}.duckdb"
+                shutil.copy(args.db, copy)
+                times[name].append(run(code, copy, args.ego))
+                print(f"round {i + 1} {name}: {times[name][-1]}", flush=True)
+    med = {name: {k: statistics.median(t[k] for t in runs) for k in ("cpu_s", "wall_s")}
+           for name, runs in times.items()}
+    same = len({t["matches"] for runs in times.values() for t in runs}) == 1
+    for name, m in med.items():
+        print(f"{name}: median CPU {m['cpu_s']:.2f} s, wall {m['wall_s']:.2f} s over {args.rounds} re-matches")
+    print(f"speed-up (base / this): CPU {med[args.base]['cpu_s'] / med['this']['cpu_s']:.2f}x, "
+          f"wall {med[args.base]['wall_s'] / med['this']['wall_s']:.2f}x; same matches: {same}")
+
+
+if __name__ == "__main__":
+    main()
