@@ -18,7 +18,7 @@ import duckdb
 import numpy as np
 import pandas as pd
 
-from logiq_sql.plan import OBJECT_RELATION_RANGE_M, resolve_scenarios
+from logiq_sql.spec.plan import OBJECT_RELATION_RANGE_M, resolve_scenarios
 
 VEHICLE_KINDS = {"vehicle", "truck", "bus", "trailer", "motorcycle", "emergency_vehicle"}
 

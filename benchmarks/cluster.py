@@ -112,7 +112,7 @@ def session(url: str, shipped: Path, executors: int, executor_memory: str = "512
     with ``shipped`` (project_zip) on the executors' Python path; one core per executor."""
     from pyspark.sql import SparkSession
 
-    from logiq_sql.engines import spark_session
+    from logiq_sql.engines.spark_engine import spark_session
 
     os.environ["PYSPARK_PYTHON"] = sys.executable  # read when the context starts (not from the conf)
     active = SparkSession.getActiveSession()

@@ -4,7 +4,7 @@
 
 Each part is the least a pipeline of this kind must do, written as one plain DuckDB statement over the tier's
 tracks.parquet with nothing of logiq_sql around it but its constants (the static kinds, the chunk size);
-localisation is logiq_sql.localise's look-up over it and lanes.parquet:
+localisation is logiq_sql.ingestion.localise's look-up over it and lanes.parquet:
 
     floor          the benchmark floor: scan + group-by over the track columns (benchmarks/tiers.py)
     window         one per-actor window (the previous sample), the least that speeds, headings, lane runs and
@@ -15,7 +15,7 @@ localisation is logiq_sql.localise's look-up over it and lanes.parquet:
                    band) as relations.sql pairs them (bands of 201 m, each ego row probing its band and the two
                    beside it: the cheapest pairing measured, benchmarks/README.md)
     localisation   every moving row's lanes within 3 m, with distance and heading difference: ingest's own
-                   look-up (logiq_sql.localise, compiled: its index built per map, then the pairs as arrays), no
+                   look-up (logiq_sql.ingestion.localise, compiled: its index built per map, then the pairs as arrays), no
                    rows written; both cores (a thread each over half of a map's rows)
 
 The sum of these parts says how far any design of the pipeline could get: the issue-15 targets are 40x the floor
@@ -37,7 +37,7 @@ import numpy as np
 import polars as pl
 
 from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
-from logiq_sql.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
+from logiq_sql.ingestion.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
 
 PARTS = {
     "floor": FLOOR_SQL,

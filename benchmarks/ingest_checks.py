@@ -18,10 +18,10 @@ from pathlib import Path
 
 import polars as pl
 
-from logiq_sql.errors import InputError
-from logiq_sql.ingestion import clean_batch, clean_tracks
-from logiq_sql.readers import parquet
-from logiq_sql.timing import cpu_seconds
+from logiq_sql.core.errors import InputError
+from logiq_sql.core.timing import cpu_seconds
+from logiq_sql.ingestion.ingest import clean_batch, clean_tracks
+from logiq_sql.ingestion.readers import parquet
 
 
 def _timed(fn):

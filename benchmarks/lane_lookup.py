@@ -5,8 +5,8 @@
 Every moving track row against the lanes of its drive's map, map by map, the rows of a map split between two
 threads, as ``benchmarks.components`` counts localisation:
 
-    new      logiq_sql.localise: LaneIndex built per map, then its compiled look-up (arrays out)
-    new+rows logiq_sql.localise.locate, as ingest calls it: the same plus the track_lanes frame (ids gathered),
+    new      logiq_sql.ingestion.localise: LaneIndex built per map, then its compiled look-up (arrays out)
+    new+rows logiq_sql.ingestion.localise.locate, as ingest calls it: the same plus the track_lanes frame (ids gathered),
              its rows split between localise.WORKERS threads
     old      benchmarks/shapely_lanes.py, the shapely look-up ingest used before (arrays out)
 
@@ -26,7 +26,7 @@ import polars as pl
 
 from benchmarks.shapely_lanes import ShapelyLanes
 from benchmarks.tiers import WORK
-from logiq_sql.localise import STATIC_KINDS, LaneIndex, locate
+from logiq_sql.ingestion.localise import STATIC_KINDS, LaneIndex, locate
 
 
 def maps(parquet) -> list[tuple[pl.DataFrame, pl.DataFrame]]:

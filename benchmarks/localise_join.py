@@ -1,5 +1,5 @@
 """Map localisation as a relational join (issue 15): EXACT BUT NOT FASTER, SO NOT WIRED IN. Ingest localised with
-shapely then (``benchmarks/shapely_lanes.py``, the reference here; since issue 33 ``logiq_sql/localise.py``
+shapely then (``benchmarks/shapely_lanes.py``, the reference here; since issue 33 ``logiq_sql/ingestion/localise.py``
 computes the same rows compiled); this module and ``benchmarks/localise_join_sql/`` are the measured alternative,
 kept for a later attempt. On the base drives (1,305,714 rows, 103 maps) it gave the same
 3,253,293 rows and cost about 22 CPU s against shapely's 10 (``benchmarks/README.md``, section of 2026-11-26).
@@ -45,8 +45,9 @@ import polars as pl
 import shapely
 
 from benchmarks.shapely_lanes import shapely_locate as reference_locate
-from logiq_sql import db, schema
-from logiq_sql.localise import LaneIndex
+from logiq_sql.core import schema
+from logiq_sql.ingestion.localise import LaneIndex
+from logiq_sql.storage import tables
 
 CELL_M = 1.0  # a power of two: x * (1 / CELL_M) and its floor are exact, in numpy as in SQL
 SLACK_M = 1e-6  # every pruning distance is widened by this: pieces a rounding error could need are kept
@@ -281,7 +282,7 @@ def join_locate(tracks: pl.DataFrame, lanes: pl.DataFrame) -> pl.DataFrame:
     DuckDB, as ``benchmarks.shapely_lanes.shapely_locate`` gives them."""
     con = duckdb.connect()
     try:
-        db.create_table(con, schema.TRACK_LANES)
+        tables.create_table(con, schema.TRACK_LANES)
         frame = tracks if "kind" in tracks.columns else tracks.with_columns(kind=pl.lit("vehicle"))
         con.register("tracks", frame)
         con.register("_drive_maps", frame.select(pl.col("drive_id").unique(), map_no=pl.lit(0, pl.Int32)))
@@ -308,7 +309,7 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     tracks = tracks.join(drive_maps.select("drive_id", "map_id"), on="drive_id")
     cons = {name: duckdb.connect() for name in ("old", "new, map by map", "new, one batch")}
     for con in cons.values():
-        db.create_table(con, schema.TRACK_LANES)
+        tables.create_table(con, schema.TRACK_LANES)
     spent: dict[str, list[float]] = {}
 
     def timed(name: str, fn, *args):
@@ -322,7 +323,7 @@ def main(argv: list[str] | None = None) -> dict[str, object]:
     con = cons["new, map by map"]
     for (map_id,), on_map in tracks.group_by("map_id", maintain_order=True):
         ln = lanes.filter(pl.col("map_id") == map_id).drop("map_no")
-        timed("old", lambda t=on_map, m=ln: db.insert(cons["old"], "track_lanes", reference_locate(t, m)))
+        timed("old", lambda t=on_map, m=ln: tables.insert(cons["old"], "track_lanes", reference_locate(t, m)))
         con.register("tracks", on_map)
         con.register("_drive_maps", on_map.select(pl.col("drive_id").unique(), map_no=pl.lit(0, pl.Int32)))
         occupied = con.sql((SQL / "track_cells.sql").read_text(), params={"cells_per_m": 1.0 / CELL_M}).pl()

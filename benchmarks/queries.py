@@ -19,8 +19,8 @@ import time
 import duckdb
 
 from benchmarks.tiers import WORK
-from logiq_sql.plan import JUNCTION_STEPS, RELATION_STEPS, parse_ego, resolve_scenarios, run_values, scenario_steps
-from logiq_sql.sql import SINGLE_THREADED, bind, materialise, query_text
+from logiq_sql.core.sql import SINGLE_THREADED, bind, materialise, query_text
+from logiq_sql.spec.plan import JUNCTION_STEPS, RELATION_STEPS, parse_ego, resolve_scenarios, run_values, scenario_steps
 
 
 def text_at(revision: str, relative: str) -> str:

@@ -1,5 +1,5 @@
 """One re-match (``match --force --ego every:10``) of a matched file in this process, and its CPU seconds: the
-whole match and the relations stage (logiq_sql.timing). Run as a script, so that PYTHONPATH chooses the code:
+whole match and the relations stage (logiq_sql.core.timing). Run as a script, so that PYTHONPATH chooses the code:
 
     PYTHONPATH=. python benchmarks/rematch.py COPY.duckdb all
     PYTHONPATH=/tmp/before python benchmarks/rematch.py COPY.duckdb cyclist_close_to_moving_sut
@@ -16,7 +16,7 @@ import time
 
 import logiq_sql
 from logiq_sql import match
-from logiq_sql.timing import cpu_seconds, recording
+from logiq_sql.core.timing import cpu_seconds, recording
 
 
 def main(db: str, which: str) -> dict[str, object]:

@@ -10,8 +10,8 @@ import numpy as np
 import polars as pl
 import shapely
 
-from logiq_sql import schema
-from logiq_sql.localise import STATIC_KINDS, arc_length_keys
+from logiq_sql.core import schema
+from logiq_sql.ingestion.localise import STATIC_KINDS, arc_length_keys
 
 
 class _Geometry:

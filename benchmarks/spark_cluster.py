@@ -27,10 +27,10 @@ import time
 
 from benchmarks.cluster import project_zip, session, standalone
 from benchmarks.tiers import RESULTS, TIERS, WORK, outputs_against, prepare
-from logiq_sql.dataset_ingest import ingest_dataset
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match, match_dataset
-from logiq_sql.timing import cpu_seconds
+from logiq_sql.core.timing import cpu_seconds
+from logiq_sql.ingestion.dataset_ingest import ingest_dataset
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.match import match, match_dataset
 
 
 def timed(run) -> tuple[float, float]:

@@ -20,7 +20,7 @@ columns), ingest of the replicated Parquet (kinematics SQL, shapely localisation
 every scenario with KPIs and coverage, re-matching everything (match --force) with and without the step cache,
 re-matching after one parameter of one scenario changed (PARAM_CHANGE) and after it changed back, the floor again
 (the faster floor is used). Each stage's wall time, rows
-per second and peak resident memory come from logiq_sql.timing. At tier S the per-pair baseline
+per second and peak resident memory come from logiq_sql.core.timing. At tier S the per-pair baseline
 (benchmarks/baseline.py) runs on the same file, is checked to give the same matches, and is timed against the
 SQL matcher on the same two scenarios. Written: benchmarks/results/<TIER>.json and <TIER>.md.
 """
@@ -45,11 +45,12 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import schema, step_cache
-from logiq_sql.db import memory_limit
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
-from logiq_sql.timing import cpu_seconds, recording
+from logiq_sql.core import schema
+from logiq_sql.core.timing import cpu_seconds, recording
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.match import match
+from logiq_sql.storage import step_cache
+from logiq_sql.storage.db import memory_limit
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
@@ -199,7 +200,7 @@ def floor_s(path: Path) -> tuple[float, float]:
 
 @contextlib.contextmanager
 def step_cache_mode(mode: str):
-    """$LOGIQ_SQL_STEP_CACHE set to ``mode`` inside the block (logiq_sql/step_cache.py)."""
+    """$LOGIQ_SQL_STEP_CACHE set to ``mode`` inside the block (logiq_sql/storage/step_cache.py)."""
     before = os.environ.get(step_cache.MODE_ENV)
     os.environ[step_cache.MODE_ENV] = mode
     try:

@@ -7,7 +7,7 @@
                       overrides={"max_distance_from_sut_in_time_units": "3s"})
     result.matches          # polars.DataFrame, one row per match
     print(lq.render("cyclist_close_to_moving_sut"))   # the SQL that runs
-    lq.match_frames(tracks, lanes=lanes)   # frames in, frames out, nothing written (logiq_sql/frames.py)
+    lq.match_frames(tracks, lanes=lanes)   # frames in, frames out, nothing written (logiq_sql/matching/frames.py)
     con = lq.connect("drives.duckdb")       # read-only: the state the last completed run published
     con.sql("select scenario, count(*) from matches group by 1").pl()
 
@@ -21,20 +21,20 @@ from pathlib import Path
 
 import duckdb
 
-from logiq_sql import db as _db
-from logiq_sql.errors import InputError as InputError
-from logiq_sql.errors import LogiqError as LogiqError
-from logiq_sql.errors import ScenarioError as ScenarioError
-from logiq_sql.errors import UnitError as UnitError
-from logiq_sql.frames import FramesResult as FramesResult
-from logiq_sql.frames import match_frames as match_frames
-from logiq_sql.ingestion import ingest as ingest
-from logiq_sql.match import MatchResult as MatchResult
-from logiq_sql.match import match as match
-from logiq_sql.match import match_dataset as match_dataset
-from logiq_sql.match import render as render
-from logiq_sql.scenario import list_scenarios as list_scenarios
-from logiq_sql.scenario import load_scenario as load_scenario
+from logiq_sql.core.errors import InputError as InputError
+from logiq_sql.core.errors import LogiqError as LogiqError
+from logiq_sql.core.errors import ScenarioError as ScenarioError
+from logiq_sql.core.errors import UnitError as UnitError
+from logiq_sql.ingestion.ingest import ingest as ingest
+from logiq_sql.matching.frames import FramesResult as FramesResult
+from logiq_sql.matching.frames import match_frames as match_frames
+from logiq_sql.matching.match import MatchResult as MatchResult
+from logiq_sql.matching.match import match as match
+from logiq_sql.matching.match import match_dataset as match_dataset
+from logiq_sql.matching.match import render as render
+from logiq_sql.spec.scenario import list_scenarios as list_scenarios
+from logiq_sql.spec.scenario import load_scenario as load_scenario
+from logiq_sql.storage import db as _db
 
 __all__ = [
     "FramesResult", "InputError", "LogiqError", "MatchResult", "ScenarioError", "UnitError", "connect", "ingest",

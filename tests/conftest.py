@@ -50,7 +50,7 @@ class Ingested:
         self._built: dict[tuple, tuple[Path, list]] = {}
 
     def _build(self, steps: tuple) -> tuple[Path, list]:
-        from logiq_sql.ingestion import ingest
+        from logiq_sql.ingestion.ingest import ingest
 
         if steps not in self._built:
             path = self._tmp.mktemp("ingested") / "drives.duckdb"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from logiq_sql.ingestion import ingest
+from logiq_sql.ingestion.ingest import ingest
 
 LANE_W = 3.5
 ROAD_LEN = 2000.0

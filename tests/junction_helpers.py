@@ -17,11 +17,11 @@ import numpy as np
 import polars as pl
 import shapely
 
-from logiq_sql.ingestion import ingest
-from logiq_sql.plan import parse_ego, phase_steps, run_values
-from logiq_sql.runner import prepare_relations
-from logiq_sql.scenario import load_scenario
-from logiq_sql.sql import materialise
+from logiq_sql.core.sql import materialise
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.runner import prepare_relations
+from logiq_sql.spec.plan import parse_ego, phase_steps, run_values
+from logiq_sql.spec.scenario import load_scenario
 
 LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
 

@@ -21,7 +21,7 @@ def package_modules() -> dict[str, ast.Module]:
 
 def logiq_imports(nodes, known: set[str]) -> list[tuple[str, list[str]]]:
     """(module, names) of every ``from logiq_sql... import`` or ``import logiq_sql...`` among ``nodes``. A name
-    that is itself a submodule (in ``known``) is an import of that submodule: ``from logiq_sql import schema``
+    that is itself a submodule (in ``known``) is an import of that submodule: ``from logiq_sql.core import schema``
     depends on ``schema``, not on the package's __init__ (which Python runs for any import of the package and
     which re-exports the matcher for users)."""
     found = []

@@ -56,8 +56,8 @@ def test_reingesting_a_drive_replaces_it(tmp_path):
 
 
 def test_every_real_drive_is_accounted_for_and_the_counts_add_up(tmp_path):
-    from logiq_sql.ingestion import expand
-    from logiq_sql.scenario import list_scenarios
+    from logiq_sql.ingestion.ingest import expand
+    from logiq_sql.spec.scenario import list_scenarios
 
     broken = tmp_path / "broken"
     broken.mkdir()

@@ -125,7 +125,7 @@ def test_report_renders_in_headless_chromium(matched_db, tmp_path):
         page.goto(html.as_uri())
         page.wait_for_load_state("load")
         # a coverage grid and a KPI grid for every scenario found in scenarios/ (each matched here)
-        from logiq_sql.scenario import list_scenarios
+        from logiq_sql.spec.scenario import list_scenarios
         assert page.locator(".chart svg").count() == 2 * len(list_scenarios())
         assert page.locator(".chart svg").first.bounding_box()["width"] > 300
         rows = page.locator("#matches tbody tr:visible")

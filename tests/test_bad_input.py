@@ -19,9 +19,9 @@ import pytest
 
 from logiq_sql import ingest, match
 from logiq_sql.cli import main
-from logiq_sql.errors import ScenarioError, UnitError
-from logiq_sql.match import resolve_scenarios
-from logiq_sql.scenario import load_scenario
+from logiq_sql.core.errors import ScenarioError, UnitError
+from logiq_sql.matching.match import resolve_scenarios
+from logiq_sql.spec.scenario import load_scenario
 from tests.helpers import LANE_W, TWO_LANES, Y1, actor, lane, times
 
 DATA = Path(__file__).parent / "data"
@@ -602,9 +602,9 @@ def test_two_files_giving_one_drive_id(tmp_path):
 
 
 def test_a_drive_twice_in_one_batch_is_written_once(tmp_path):
-    from logiq_sql import db as logiq_db
-    from logiq_sql.ingestion import write_drives
-    from logiq_sql.readers.parquet import read_parquet
+    from logiq_sql.ingestion.ingest import write_drives
+    from logiq_sql.ingestion.readers.parquet import read_parquet
+    from logiq_sql.storage import db as logiq_db
 
     (drive,) = read_parquet(write(tmp_path / "in", scene()))
     con = logiq_db.connect(tmp_path / "x.duckdb")
@@ -668,8 +668,8 @@ def test_a_reingested_drive_without_matches_keeps_no_old_relations(tmp_path):
 def test_ingest_gives_duckdb_half_the_memory_limit(tmp_path, monkeypatch, limit, shared, whole):
     """The reader's chunk and the batch's localisation sit in Python beside DuckDB while ingesting, so DuckDB gets
     half of LOGIQ_SQL_MEMORY_LIMIT there (db.share_memory); match keeps the whole limit."""
-    from logiq_sql import db as logiq_db
-    from logiq_sql import ingestion
+    from logiq_sql.ingestion import ingest as ingestion
+    from logiq_sql.storage import db as logiq_db
 
     monkeypatch.setenv("LOGIQ_SQL_MEMORY_LIMIT", limit)
     seen = []

@@ -10,8 +10,8 @@ import duckdb
 import polars as pl
 import pytest
 
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.match import match
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"

@@ -8,7 +8,8 @@ import duckdb
 import pytest
 
 from logiq_sql.cli import main
-from logiq_sql.db import connect, docs_markdown
+from logiq_sql.storage.db import connect
+from logiq_sql.storage.docs import docs_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,3 +57,23 @@ def test_end_to_end_through_the_cli(tmp_path, capsys):
     assert main(["query", "--db", db, "select actor_id, start_s, end_s from matches order by actor_id"]) == 0
     printed = capsys.readouterr().out
     assert "675" in printed and "691" in printed
+
+
+def test_every_source_format_is_named_where_users_read_it():
+    """One registry (core/formats.py): the CLI's choices, its help and the source_format column's doc list every
+    format, and each has its reader module with read_<name> (the column doc once listed 5 of the 7)."""
+    import importlib
+
+    from logiq_sql.cli import build_parser
+    from logiq_sql.core import schema
+    from logiq_sql.core.formats import FORMATS
+
+    ingest = build_parser()._subparsers._group_actions[0].choices["ingest"]
+    (fmt,) = [a for a in ingest._actions if a.dest == "format"]
+    assert list(fmt.choices) == list(FORMATS)
+    doc = next(c.doc for c in schema.DRIVE_INPUTS.columns if c.name == "source_format")
+    for name, source in FORMATS.items():
+        assert f"{name}: " in fmt.help and name in doc, name
+        module = importlib.import_module(f"logiq_sql.ingestion.readers.{name}")
+        assert callable(getattr(module, f"read_{name}")), name
+        assert source.folders is None or callable(getattr(module, source.folders)), name

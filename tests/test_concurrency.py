@@ -18,8 +18,9 @@ import duckdb
 import polars as pl
 import pytest
 
-from logiq_sql import locking, schema
 from logiq_sql.cli import EXIT_BUSY, EXIT_DISK_FULL
+from logiq_sql.core import schema
+from logiq_sql.storage import locking
 
 ROOT = Path(__file__).resolve().parents[1]
 NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
@@ -45,7 +46,7 @@ select
 # a reader process: opens the published file, runs CHECK, closes, again and again until told to stop
 READER = """
 import json, os, sys, time
-from logiq_sql.db import open_for_read
+from logiq_sql.storage.db import open_for_read
 db, check, stop, out = sys.argv[1:]
 os.nice(10)  # on 2 cores, 8 readers at the runs' priority starve them (ingest: 10 s alone, 154 s beside them)
 with open(out, "w") as f:
@@ -220,7 +221,7 @@ def test_readers_see_only_published_states_while_runs_write_and_after_one_is_kil
 
 def hold_lock(db: Path) -> subprocess.Popen:
     """Another writer: a process that takes the writer lock of ``db`` and keeps it until killed."""
-    code = ("import sys, time; from logiq_sql import locking; locking.acquire(sys.argv[1]); print('held', "
+    code = ("import sys, time; from logiq_sql.storage import locking; locking.acquire(sys.argv[1]); print('held', "
             "flush=True); time.sleep(600)")
     proc = subprocess.Popen([sys.executable, "-c", code, str(db)], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
                             text=True)
@@ -293,7 +294,7 @@ def test_a_run_failing_after_commits_publishes_nothing_and_the_next_run_takes_it
     def stop_after_second(line: str) -> None:  # after the second file's batch is committed
         if line.startswith("[2/"):
             raise Stop
-    import logiq_sql.ingestion as ingestion
+    import logiq_sql.ingestion.ingest as ingestion
     keep, ingestion.BATCH_ROWS = ingestion.BATCH_ROWS, 1  # one transaction per drive
     try:
         with pytest.raises(Stop):
@@ -341,7 +342,7 @@ def test_a_full_disk_stops_the_run_with_exit_5_and_leaves_the_published_file(sma
 # a reader of the publish race test: each answer must be a whole publish, and never older than the one before
 RACE_READER = """
 import os, sys
-from logiq_sql.db import open_for_read
+from logiq_sql.storage.db import open_for_read
 db, stop, out = sys.argv[1:]
 seen, errors = [], []
 while not os.path.exists(stop):
@@ -357,7 +358,7 @@ with open(out, "w") as f:
 
 @pytest.mark.load
 def test_readers_opening_while_runs_publish_one_after_another_never_fail_or_go_back(tmp_path):
-    from logiq_sql import db as logiq_db
+    from logiq_sql.storage import db as logiq_db
 
     path = tmp_path / "x.duckdb"
     with logiq_db.open_for_write(path) as con:
@@ -401,8 +402,8 @@ def test_a_leftover_copy_of_another_version_of_the_file_is_discarded_not_publish
 
 
 def test_a_run_does_not_publish_over_a_file_written_in_place_meanwhile(tmp_path):
-    from logiq_sql import db as logiq_db
-    from logiq_sql.errors import FileBusyError
+    from logiq_sql.core.errors import FileBusyError
+    from logiq_sql.storage import db as logiq_db
 
     path = tmp_path / "x.duckdb"
     with logiq_db.open_for_write(path) as con:
@@ -417,7 +418,7 @@ def test_a_run_does_not_publish_over_a_file_written_in_place_meanwhile(tmp_path)
 
 
 def test_a_wal_left_by_a_writer_in_place_is_taken_into_the_copy_and_not_left_beside_the_new_file(tmp_path):
-    from logiq_sql import db as logiq_db
+    from logiq_sql.storage import db as logiq_db
 
     path = tmp_path / "x.duckdb"
     with logiq_db.open_for_write(path) as con:

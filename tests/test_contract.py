@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 
 from logiq_sql.cli import main
-from logiq_sql.errors import ScenarioError
-from logiq_sql.explain import explain
-from logiq_sql.lint import lint_scenarios
-from logiq_sql.match import match
-from logiq_sql.plan import render, resolve_scenarios
-from logiq_sql.scenario import list_scenarios, load_scenario, scenario_files
+from logiq_sql.cli.lint import lint_scenarios
+from logiq_sql.core.errors import ScenarioError
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match, render
+from logiq_sql.spec.plan import resolve_scenarios
+from logiq_sql.spec.scenario import list_scenarios, load_scenario, scenario_files
 from tests.helpers import Y1, actor, intervals, make_db, times
 
 # a user's scenario: a follower that may be at most 2 s behind, with its own phase query beside the TOML file

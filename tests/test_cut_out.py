@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import polars as pl
 
-from logiq_sql.explain import explain
-from logiq_sql.match import match
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match
 from tests.helpers import LANE_W, Y1, Y2, actor, intervals, lane, make_db, times
 
 CUT_OUT = "sut_cut_out"

@@ -12,8 +12,8 @@ from pathlib import Path
 import polars as pl
 
 from logiq_sql import ingest, match
-from logiq_sql.db import THREADS_ENV
-from logiq_sql.match import EXPORTED
+from logiq_sql.matching.match import EXPORTED
+from logiq_sql.storage.db import THREADS_ENV
 
 DATA = Path(__file__).parent / "data"
 # every NGSIM 2018b scene: with fewer rows DuckDB does not spread the KPI aggregates over threads, and an

@@ -5,12 +5,12 @@ from __future__ import annotations
 import polars as pl
 import pytest
 
-from logiq_sql import units
 from logiq_sql.cli import main
-from logiq_sql.errors import InputError, ScenarioError, UnitError
-from logiq_sql.match import resolve_scenarios
-from logiq_sql.readers.parquet import read_parquet
-from logiq_sql.scenario import load_scenario
+from logiq_sql.core import units
+from logiq_sql.core.errors import InputError, ScenarioError, UnitError
+from logiq_sql.ingestion.readers.parquet import read_parquet
+from logiq_sql.matching.match import resolve_scenarios
+from logiq_sql.spec.scenario import load_scenario
 
 
 def message(exc_info) -> str:

@@ -5,10 +5,10 @@ from __future__ import annotations
 import polars as pl
 import pytest
 
-from logiq_sql import db
 from logiq_sql.cli import build_parser
-from logiq_sql.errors import InputError
+from logiq_sql.core.errors import InputError
 from logiq_sql.evaluation.evaluate import evaluate
+from logiq_sql.storage import db, tables
 
 DT = 0.1
 
@@ -19,17 +19,17 @@ def make_file(tmp_path, matches, egos=("E1",), other_actors=("A", "B"), frames=1
     path = tmp_path / "eval.duckdb"
     path.unlink(missing_ok=True)
     con = db.connect(path)
-    db.insert(con, "drive_inputs", pl.DataFrame([{
+    tables.insert(con, "drive_inputs", pl.DataFrame([{
         "drive_id": drive, "source_format": "parquet", "source_path": "x", "dt_s": DT, "rows_read": 0,
         "rows_rejected": 0, "status": "ingested"}]))
     actors = sorted({*egos, "E2", *other_actors})
-    db.insert(con, "tracks", pl.DataFrame([{
+    tables.insert(con, "tracks", pl.DataFrame([{
         "drive_id": drive, "actor_id": a, "kind": "vehicle", "is_ego": False, "frame": f, "t_s": round(f * DT, 6),
         "x_m": 0.0, "y_m": 0.0} for a in actors for f in range(frames)]))
     rows = [{"match_id": f"m{i}", "scenario": s, "scenario_version": 1, "params_hash": "h", "drive_id": drive,
              "ego_id": e, "actor_id": a, "start_frame": round(t0 / DT), "end_frame": round(t1 / DT), "start_s": t0,
              "end_s": t1, "duration_s": t1 - t0} for i, (s, e, a, t0, t1) in enumerate(matches)]
-    db.insert(con, "matches", pl.DataFrame(rows, schema=db.MATCHES.polars_schema))
+    tables.insert(con, "matches", pl.DataFrame(rows, schema=tables.MATCHES.polars_schema))
     con.execute("create table ego_lanes (drive_id varchar, ego_id varchar, frame bigint)")
     con.execute("insert into ego_lanes select drive_id, actor_id, frame from tracks "
                 "where actor_id in (select unnest($e))", {"e": list(egos)})
@@ -186,7 +186,7 @@ def test_cli_writes_parquet(tmp_path, capsys):
 
 def test_pooled_f1_sums_the_events_of_every_seed():
     """campaign --pool: F1 from the summed TP, FP and FN of a regime's seeds, beside its lowest run."""
-    from logiq_sql.evaluation.campaign import pooled_markdown
+    from logiq_sql.cli.campaign import pooled_markdown
 
     runs = pl.DataFrame({"scenario": ["s", "s"], "regime": ["r", "r"], "noise": ["exact", "exact"],
                          "tp": [20, 30], "fp": [0, 1], "fn": [3, 0], "f1": [40 / 43, 60 / 61]})

@@ -1,4 +1,4 @@
-"""OpenSCENARIO and OpenLABEL exports (issue 20), validated against the published schemas in logiq_sql/schemas/.
+"""OpenSCENARIO and OpenLABEL exports (issue 20), validated against the published schemas in logiq_sql/outputs/schemas/.
 
 The drive: a straight OpenDRIVE road written with scenariogeneration, an ego and a car following it 20 m behind
 (a follower_vehicle match over the whole 6 s), ingested with ``ingest opendrive`` and matched.
@@ -16,10 +16,10 @@ import polars as pl
 import pytest
 
 from logiq_sql.cli import main
-from logiq_sql.export.openlabel import export_openlabel, validate_openlabel
-from logiq_sql.export.xosc import export_xosc, validate_xosc
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.match import match
+from logiq_sql.outputs.export.openlabel import export_openlabel, validate_openlabel
+from logiq_sql.outputs.export.xosc import export_xosc, validate_xosc
 from tests.helpers import Y1, actor, make_db, times
 
 pytest.importorskip("xmlschema", reason="pip install 'logiq-sql[formats]'")
@@ -173,7 +173,7 @@ def test_xosc_of_a_sumo_match_can_carry_its_network_as_opendrive(tmp_path):
 
     import shapely
 
-    from logiq_sql.readers.opendrive import xodr_map
+    from logiq_sql.ingestion.readers.opendrive import xodr_map
 
     junction = Path(__file__).parent / "data" / "sumo" / "junction_s1"
     run = tmp_path / "run"

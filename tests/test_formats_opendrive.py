@@ -18,10 +18,11 @@ import polars as pl
 import pytest
 import shapely
 
-from logiq_sql import ingest, schema
-from logiq_sql.errors import InputError
-from logiq_sql.readers.opendrive import read_opendrive, xodr_map
-from logiq_sql.readers.sumo import read_sumo
+from logiq_sql import ingest
+from logiq_sql.core import schema
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.opendrive import read_opendrive, xodr_map
+from logiq_sql.ingestion.readers.sumo import read_sumo
 
 pytestmark = pytest.mark.sumo
 JUNCTION = Path(__file__).parent / "data" / "sumo" / "junction_s1"
@@ -36,7 +37,7 @@ def sumo_drive():
 @pytest.fixture(scope="module")
 def junction_xodr(tmp_path_factory, sumo_drive) -> Path:
     """The junction run's network as OpenDRIVE, written by netconvert."""
-    from logiq_sql.readers.sumo import sumo_bin
+    from logiq_sql.ingestion.readers.sumo import sumo_bin
 
     out = tmp_path_factory.mktemp("xodr") / "junction.xodr"
     bin_dir = sumo_bin()

@@ -11,8 +11,8 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest
-from logiq_sql.errors import InputError
-from logiq_sql.readers.osi import read_osi
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.osi import read_osi
 
 osi_object = pytest.importorskip("osi3.osi_object_pb2", reason="pip install 'logiq-sql[formats]'")
 from osi3.osi_groundtruth_pb2 import GroundTruth  # noqa: E402

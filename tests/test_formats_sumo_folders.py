@@ -15,8 +15,8 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest
-from logiq_sql.errors import InputError
-from logiq_sql.readers.sumo import file_role, read_sumo, run_files, run_folders
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.sumo import file_role, read_sumo, run_files, run_folders
 
 DATA = Path(__file__).parent / "data" / "sumo"
 JUNCTION = DATA / "junction_s1"

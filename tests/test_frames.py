@@ -9,8 +9,9 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from logiq_sql import InputError, db, ingest, match, match_frames
-from logiq_sql.scenario import list_scenarios
+from logiq_sql import InputError, ingest, match, match_frames
+from logiq_sql.spec.scenario import list_scenarios
+from logiq_sql.storage import db
 from tests.helpers import TWO_LANES, Y1, actor, times
 
 DATA = Path(__file__).parent / "data"

@@ -19,7 +19,7 @@ import pytest
 
 import logiq_sql as lq
 from logiq_sql.cli import EXIT_BAD_INPUT, EXIT_OK, main
-from logiq_sql.errors import LogiqError, ScenarioError
+from logiq_sql.core.errors import LogiqError, ScenarioError
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -255,7 +255,7 @@ def test_new_scenario_passes_lint_and_matches(tmp_path, capsys):
     assert main(["new-scenario", "Close-Follower", "--dir", str(folder)]) == EXIT_BAD_INPUT
     assert "logiq-sql: error: NAME Close-Follower: write the name in lower case" in capsys.readouterr().err
     with pytest.raises(ScenarioError, match=r"extends='logiq_base_object_scenario': .* needs the kinds parameter"):
-        from logiq_sql.scaffold import new_scenario
+        from logiq_sql.spec.scaffold import new_scenario
         new_scenario("near_object", "logiq_base_object_scenario", tmp_path / "other")
 
 
@@ -324,7 +324,8 @@ def test_connect_is_read_only_unless_asked(tmp_path):
 
 
 def test_report_replay_and_busy_errors_name_the_python_argument(tmp_path, capsys):
-    from logiq_sql import locking, replay, report
+    from logiq_sql.outputs import replay, report
+    from logiq_sql.storage import locking
 
     missing = tmp_path / "none.duckdb"
     with pytest.raises(LogiqError, match=r"^db='.*none\.duckdb': no such file"):

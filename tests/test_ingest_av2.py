@@ -22,9 +22,9 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest
-from logiq_sql.errors import InputError
-from logiq_sql.ingestion import expand
-from logiq_sql.readers.av2 import (
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.ingest import expand
+from logiq_sql.ingestion.readers.av2 import (
     ATTRIBUTION,
     EGO_CENTRE_AHEAD_M,
     FORECASTING_KINDS,
@@ -307,7 +307,7 @@ def test_unknown_category_ridden_bicycle_and_double_frame_are_counted(tmp_path):
     assert drive.rows_rejected == 4
     assert drive.reject_reason == (
         "1 row(s) of unmapped AV2 categor(y/ies) dropped: HOVERBOARD (1); add them to the kind table of "
-        "logiq_sql/readers/av2.py (annotations.feather); "
+        "logiq_sql/ingestion/readers/av2.py (annotations.feather); "
         "1 BICYCLE row(s) within 1 m of a BICYCLIST dropped (one road user: the rider is the actor); "
         "2 row(s) falling in a frame their actor already has dropped (the row nearer to frame * 0.1 s kept)")
     tracks = drive.tracks

@@ -14,9 +14,10 @@ import polars as pl
 import pytest
 
 from benchmarks.ingest_checks import same_drives
-from logiq_sql import ingest, ingestion
-from logiq_sql.errors import InputError
-from logiq_sql.readers import parquet
+from logiq_sql import ingest
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion import ingest as ingestion
+from logiq_sql.ingestion.readers import parquet
 from tests.helpers import TWO_LANES, Y1, actor, times
 
 T = times(5)

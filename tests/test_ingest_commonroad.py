@@ -10,9 +10,9 @@ import polars as pl
 import pytest
 import shapely
 
-from logiq_sql import schema
-from logiq_sql.errors import InputError
-from logiq_sql.readers.commonroad import light_state, read_commonroad
+from logiq_sql.core import schema
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.commonroad import light_state, read_commonroad
 
 # /work/main/tests/<this file> -> parents[2] is /work, beside the repo: /work/shared/data/real/commonroad_ngsim.
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "commonroad_ngsim"

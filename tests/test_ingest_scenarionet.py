@@ -12,9 +12,9 @@ import polars as pl
 import pytest
 import shapely
 
-from logiq_sql import schema
-from logiq_sql.errors import InputError
-from logiq_sql.readers.scenarionet import _kind, read_scenarionet, safe_load
+from logiq_sql.core import schema
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.scenarionet import _kind, read_scenarionet, safe_load
 
 DATA = Path(__file__).resolve().parents[2] / "shared/data/real/nuscenes_mini_scenarionet/original_pkl"
 BUNDLED = Path(__file__).parent / "data/nuscenes_mini_scenarionet"  # four of the ten scenes

@@ -23,9 +23,9 @@ import shapely
 
 from logiq_sql import ingest
 from logiq_sql.cli import main
-from logiq_sql.errors import InputError, LogiqError
-from logiq_sql.readers import sumo as sumo_reader
-from logiq_sql.readers.sumo import read_fcd, read_sumo, read_vtypes, xml_records
+from logiq_sql.core.errors import InputError, LogiqError
+from logiq_sql.ingestion.readers import sumo as sumo_reader
+from logiq_sql.ingestion.readers.sumo import read_fcd, read_sumo, read_vtypes, xml_records
 
 DATA = Path(__file__).parent / "data" / "sumo"
 MOTORWAY, JUNCTION = DATA / "motorway_s1", DATA / "junction_s1"

@@ -20,7 +20,7 @@ DATA = ROOT / "tests/data"
 NGSIM = DATA / "commonroad_ngsim/scenarios_2018b"
 SCENES = sorted(NGSIM.glob("USA_US101-*.xml.gz"))  # 26 scenes with followers and cut-outs
 # small batches, so that a run killed half-way has already committed some of them
-INGEST = ("import sys, logiq_sql.ingestion as i; i.BATCH_ROWS = 5000; from logiq_sql.cli import main; "
+INGEST = ("import sys, logiq_sql.ingestion.ingest as i; i.BATCH_ROWS = 5000; from logiq_sql.cli import main; "
           "sys.exit(main(sys.argv[1:]))")
 MATCH = ["-m", "logiq_sql.cli", "match", "--ego", "every:4"]
 

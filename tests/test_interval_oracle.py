@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from logiq_sql.explain import explain
-from logiq_sql.match import match
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match
 from tests.helpers import Y1, intervals, make_db
 
 DT = 0.1

@@ -8,7 +8,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from logiq_sql.errors import LogiqError
+from logiq_sql.core.errors import LogiqError
 from logiq_sql.evaluation.simulate import Regime, _junction, _junction_routes, command_options
 
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import duckdb
 
-from logiq_sql import db, schema
+from logiq_sql.core import schema
+from logiq_sql.storage import db
 from tests.helpers import Y1, Y2, actor, make_db, times
 
 T = times(3)

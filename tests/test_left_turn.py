@@ -10,8 +10,8 @@ import pytest
 import shapely
 from junction_helpers import drive, left_turn_frames, make_junction_db
 
-from logiq_sql.explain import explain
-from logiq_sql.match import match
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match
 
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
 T = np.round(np.arange(0, 200) * 0.1, 6)
@@ -129,7 +129,7 @@ def test_explain_reports_a_match_as_matched(base):
 def test_phase_columns_are_the_conjunction_of_the_listed_conditions(base):
     """The scenario file lists each phase's conditions for explain; they must be exactly the SQL's."""
     path, _ = base
-    from logiq_sql.scenario import load_scenario
+    from logiq_sql.spec.scenario import load_scenario
     s = load_scenario(SCENARIO)
     frames = left_turn_frames(path, drives=["j1"])["phase_frames"]
     for i, phase in enumerate(s.phases, 1):
@@ -149,7 +149,7 @@ def test_pet_is_null_when_both_boxes_are_in_the_area_at_once(tmp_path):
 
 def _chain(islands: list[tuple[int, int, int]], phase_count: int, max_gap_frames: int = 0) -> list[tuple]:
     """Run match/chain.sql and match/sequential.sql on hand-written phase runs (phase, start, end)."""
-    from logiq_sql.sql import materialise
+    from logiq_sql.core.sql import materialise
     con = duckdb.connect()
     con.register("phase_runs", pl.DataFrame(
         [(k, "d", "e", "a", s, e, max_gap_frames, False) for k, s, e in islands], orient="row",
@@ -187,7 +187,7 @@ def test_chain_transitions():
 
 def test_rendered_sql_reruns_to_the_same_match(base):
     """render prints SQL an analyst can run as it is; it reads the stored encroachments (shapely)."""
-    from logiq_sql.match import render
+    from logiq_sql.matching.match import render
     path, result = base
     with duckdb.connect(str(path)) as con:
         result_set = con.execute(render(SCENARIO))

@@ -16,9 +16,9 @@ import pytest
 import shapely
 from junction_helpers import left_turn_frames
 
-from logiq_sql.explain import explain
-from logiq_sql.ingestion import ingest
-from logiq_sql.match import match
+from logiq_sql.ingestion.ingest import ingest
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match
 
 DATA = Path(__file__).parent / "data"
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"

@@ -1,4 +1,4 @@
-"""Lane localisation (``logiq_sql.localise``, a compiled look-up) against the shapely computation it replaced
+"""Lane localisation (``logiq_sql.ingestion.localise``, a compiled look-up) against the shapely computation it replaced
 (``benchmarks/shapely_lanes.py``: GEOS's STRtree, contains, distance, line_locate_point), and against a slow, obvious
 search with shapely: the same (row, lane) pairs, distances and heading differences within 1e-9 on every bundled
 map, on hand-made lanes with points on vertices, edges, holes and lane ends, and on random lanes."""
@@ -16,12 +16,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from benchmarks.shapely_lanes import ShapelyLanes
-from logiq_sql import localise
-from logiq_sql.localise import LaneIndex, locate
-from logiq_sql.readers.av2 import read_av2
-from logiq_sql.readers.commonroad import read_commonroad
-from logiq_sql.readers.scenarionet import read_scenarionet
-from logiq_sql.readers.sumo import read_sumo
+from logiq_sql.ingestion import localise
+from logiq_sql.ingestion.localise import LaneIndex, locate
+from logiq_sql.ingestion.readers.av2 import read_av2
+from logiq_sql.ingestion.readers.commonroad import read_commonroad
+from logiq_sql.ingestion.readers.scenarionet import read_scenarionet
+from logiq_sql.ingestion.readers.sumo import read_sumo
 
 DATA = Path(__file__).parent / "data"
 SCENE = DATA / "nuscenes_mini_scenarionet/sd_nuscenes_v1.0-mini_scene-0061.pkl"
@@ -203,11 +203,11 @@ def test_the_look_up_runs_from_a_zipped_package_with_nowhere_to_cache(tmp_path):
     import sys
     import zipfile
 
-    package = Path(localise.__file__).parent
+    package = Path(localise.__file__).parents[1]
     with zipfile.ZipFile(tmp_path / "logiq_sql.zip", "w") as z:
         for f in package.rglob("*.py"):
             z.write(f, f.relative_to(package.parent))
-    script = ("import numpy as np, polars as pl\nfrom logiq_sql import localise\n"
+    script = ("import numpy as np, polars as pl\nfrom logiq_sql.ingestion import localise\n"
               "lanes = pl.DataFrame({'lane_id': ['a'], 'polygon_wkt': ['POLYGON ((0 0, 10 0, 10 3, 0 3, 0 0))'],"
               " 'centerline_wkt': ['LINESTRING (0 1.5, 10 1.5)']})\n"
               "row, lane, dist, diff = localise.LaneIndex(lanes).locate(np.array([1.0, 12.0]), np.array([1.0, 1.0]),"
@@ -216,5 +216,5 @@ def test_the_look_up_runs_from_a_zipped_package_with_nowhere_to_cache(tmp_path):
     env.update(PYTHONPATH=str(tmp_path / "logiq_sql.zip"), HOME="/proc")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == [str(tmp_path / "logiq_sql.zip/logiq_sql/localise.py"), "False", "[0,", "1]",
+    assert out.stdout.split() == [str(tmp_path / "logiq_sql.zip/logiq_sql/ingestion/localise.py"), "False", "[0,", "1]",
                                   "[0.0,", "2.0]", "[0.5,", "0.0]"]

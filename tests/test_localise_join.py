@@ -13,10 +13,10 @@ import pytest
 
 from benchmarks.localise_join import join_locate
 from benchmarks.shapely_lanes import shapely_locate
-from logiq_sql.readers.av2 import read_av2
-from logiq_sql.readers.commonroad import read_commonroad
-from logiq_sql.readers.scenarionet import read_scenarionet
-from logiq_sql.readers.sumo import read_sumo
+from logiq_sql.ingestion.readers.av2 import read_av2
+from logiq_sql.ingestion.readers.commonroad import read_commonroad
+from logiq_sql.ingestion.readers.scenarionet import read_scenarionet
+from logiq_sql.ingestion.readers.sumo import read_sumo
 
 DATA = Path(__file__).parent / "data"
 KEY = ["drive_id", "actor_id", "frame", "lane_id"]

@@ -9,8 +9,8 @@ import numpy as np
 import polars as pl
 
 from logiq_sql.evaluation import lane_offsets
-from logiq_sql.explain import explain
-from logiq_sql.match import match
+from logiq_sql.matching.explain import explain
+from logiq_sql.matching.match import match
 from tests.helpers import Y1, Y2, actor, intervals, make_db, times
 
 CUT_OUT = "sut_cut_out"

@@ -85,7 +85,7 @@ def test_exploration(tmp_path, executed):
     nb = execute("exploration.ipynb", tmp_path, executed)
     images = outputs(nb, "image/png")
     # timeline, a bird's-eye view, a coverage grid per scenario (found in scenarios/), KPI grid
-    from logiq_sql.scenario import list_scenarios
+    from logiq_sql.spec.scenario import list_scenarios
     assert len(images) == 2 + len(list_scenarios()) + 1
     # the motorway cut-out, then one match of each scenario, each with its frames
     assert len(replays(nb)) == 1 + len(list_scenarios()) and all(r.count("data:image/png;base64") >= 10 for r in replays(nb))

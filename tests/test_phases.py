@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from logiq_sql.match import match
+from logiq_sql.matching.match import match
 from tests.helpers import LANE_W, Y1, Y2, actor, intervals, lane, make_db, times
 
 FOLLOWER = "follower_vehicle"

@@ -17,9 +17,9 @@ import pytest
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.text import Text
 
-from logiq_sql import replay
 from logiq_sql.cli import main
-from logiq_sql.db import connect
+from logiq_sql.outputs import replay
+from logiq_sql.storage.db import connect
 from tests.test_analysts import CHROMIUM, CHROMIUM_ARGS, REPLAYS, _chromium
 
 # a box may touch its neighbour by this much (pixels): antialiasing and font metrics, not overprint

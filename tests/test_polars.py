@@ -1,4 +1,4 @@
-"""Polars SQL against DuckDB, query file by query file, so the verdict table (engines.POLARS_UNSUPPORTED) cannot
+"""Polars SQL against DuckDB, query file by query file, so the verdict table (engines.polars_engine.POLARS_UNSUPPORTED) cannot
 rot: a portable query it does not list must give DuckDB's rows over the same inputs; a query it lists must fail
 with the listed error. What the engine runs instead (a Polars override in queries/overrides/polars/, or the match
 ids' md5 computed afterwards) must give DuckDB's rows too. --engine polars runs the scenarios whose every file it
@@ -14,13 +14,16 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from logiq_sql import db, ingest, match
-from logiq_sql.encroachment import encroachments
-from logiq_sql.engines import POLARS_UNSUPPORTED, DuckEngine, EngineError, PolarsEngine, override, polars_blocker
-from logiq_sql.match import select_run_drives
-from logiq_sql.paths import data_dir
-from logiq_sql.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
-from logiq_sql.sql import query_text
+from logiq_sql import ingest, match
+from logiq_sql.core.paths import data_dir
+from logiq_sql.core.sql import query_text
+from logiq_sql.engines.base import EngineError
+from logiq_sql.engines.duckdb_engine import DuckEngine
+from logiq_sql.engines.polars_engine import POLARS_UNSUPPORTED, PolarsEngine, override, polars_blocker
+from logiq_sql.matching.encroachment import encroachments
+from logiq_sql.matching.match import select_run_drives
+from logiq_sql.spec.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
+from logiq_sql.storage import db
 
 DATA = Path(__file__).parent / "data"
 LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
@@ -159,7 +162,7 @@ def test_engine_polars_stops_before_running_and_names_the_query(drives, monkeypa
 def test_engine_spark_without_pyspark_says_how_to_install(monkeypatch):
     import sys
 
-    from logiq_sql.engines import spark_session
+    from logiq_sql.engines.spark_engine import spark_session
 
     monkeypatch.setitem(sys.modules, "pyspark.sql", None)  # as if PySpark were not installed
     with pytest.raises(EngineError, match=re.escape("pip install 'logiq-sql[spark]'")):
@@ -167,7 +170,7 @@ def test_engine_spark_without_pyspark_says_how_to_install(monkeypatch):
 
 
 def test_render_has_no_polars_form():
-    from logiq_sql.match import render
+    from logiq_sql.matching.match import render
 
     with pytest.raises(EngineError, match="Polars SQL has no parameters"):
         render("follower_vehicle", engine="polars")
@@ -282,7 +285,7 @@ def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
     """A construct Polars SQL cannot run is a lint problem in a portable file, unless the file has a Polars
     override or the engine refuses it by name; an override must replace an existing file, bind the same
     parameters and itself run on Polars."""
-    from logiq_sql.lint import lint_tree
+    from logiq_sql.cli.lint import lint_tree
 
     root = tmp_path / "queries"
     (root / "relations").mkdir(parents=True)

@@ -16,8 +16,8 @@ import polars as pl
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from logiq_sql.runner import coverage_buckets
-from logiq_sql.sql import materialise
+from logiq_sql.core.sql import materialise
+from logiq_sql.matching.runner import coverage_buckets
 
 DT = 0.1
 PROFILE = settings(max_examples=60, deadline=None, derandomize=True)

@@ -24,7 +24,7 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest, match
-from logiq_sql.explain import explain
+from logiq_sql.matching.explain import explain
 
 NGSIM = Path(__file__).parent / "data" / "commonroad_ngsim" / "scenarios_2018b"
 NUSCENES = Path(__file__).parent / "data" / "nuscenes_mini_scenarionet"

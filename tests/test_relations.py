@@ -10,7 +10,7 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from logiq_sql.match import match
+from logiq_sql.matching.match import match
 from tests.helpers import Y1, actor, make_db, times
 
 

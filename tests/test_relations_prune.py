@@ -1,5 +1,5 @@
 """relations holds only the actor kinds some scenario of the run can use (each scenario's `relation_kinds`, every
-kind when one leaves it unset; logiq_sql.plan.relation_kinds_csv): the kept rows of a run are relations_of's rows of
+kind when one leaves it unset; logiq_sql.spec.plan.relation_kinds_csv): the kept rows of a run are relations_of's rows of
 those kinds, and a scenario run alone gives the matches, phases, KPIs and coverage it gives beside the others."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import polars as pl
 import pytest
 
 from logiq_sql import match
-from logiq_sql.plan import ALL_KINDS_CSV, relation_kinds_csv, resolve_scenarios
+from logiq_sql.spec.plan import ALL_KINDS_CSV, relation_kinds_csv, resolve_scenarios
 
 DATA = Path(__file__).parent / "data"
 CYCLIST = "cyclist_close_to_moving_sut"
@@ -85,9 +85,9 @@ def test_the_kept_relations_are_relations_of_of_the_declared_kinds(runs):
 
 
 def test_relation_kinds_must_be_kinds(tmp_path):
-    from logiq_sql.errors import ScenarioError
-    from logiq_sql.paths import data_dir
-    from logiq_sql.scenario import load_scenario
+    from logiq_sql.core.errors import ScenarioError
+    from logiq_sql.core.paths import data_dir
+    from logiq_sql.spec.scenario import load_scenario
 
     text = (data_dir("scenarios") / f"{CYCLIST}.toml").read_text()
     assert 'relation_kinds = ["cyclist"]' in text

@@ -1,4 +1,4 @@
-"""Match replays (logiq_sql/replay.py): the scene holds the tracks, the relation values and the phases of the match,
+"""Match replays (logiq_sql/outputs/replay.py): the scene holds the tracks, the relation values and the phases of the match,
 the CLI writes GIF and MP4, the notebook function animates, and a report scene stays small. The replay playing in
 headless Chromium is in test_analysts.py, beside the report test."""
 
@@ -11,9 +11,9 @@ import pytest
 from matplotlib.animation import FuncAnimation
 from PIL import Image
 
-from logiq_sql import replay
 from logiq_sql.cli import main
-from logiq_sql.db import connect
+from logiq_sql.outputs import replay
+from logiq_sql.storage.db import connect
 
 SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut",
              "unprotected_left_turn_with_yield_and_traffic_light")

@@ -7,10 +7,10 @@ from __future__ import annotations
 import duckdb
 import polars as pl
 
-from logiq_sql.engines import DuckEngine
-from logiq_sql.match import match
-from logiq_sql.plan import parse_ego, resolve_scenarios, run_values
-from logiq_sql.runner import shared_phase_steps
+from logiq_sql.engines.duckdb_engine import DuckEngine
+from logiq_sql.matching.match import match
+from logiq_sql.matching.runner import shared_phase_steps
+from logiq_sql.spec.plan import parse_ego, resolve_scenarios, run_values
 from tests.helpers import Y1, Y2, actor, make_db, times
 from tests.test_cut_out import ramp
 

@@ -19,7 +19,7 @@ import pytest
 import sqlglot
 
 from logiq_sql import ingest, match
-from logiq_sql.lint import spark_problems
+from logiq_sql.cli.lint import spark_problems
 
 pytestmark = pytest.mark.spark
 DATA = Path(__file__).parent / "data"
@@ -35,7 +35,7 @@ def spark(client_jit):
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail("CI=true but PySpark is not installed: pip install '.[spark]' (make venv does).")
         pytest.skip("PySpark is not installed: pip install 'logiq-sql[spark]' (needs Java 17).")
-    from logiq_sql.engines import spark_session
+    from logiq_sql.engines.spark_engine import spark_session
 
     started = time.perf_counter()
     session = spark_session("local[2]")
@@ -79,7 +79,7 @@ OUTPUTS = {  # table -> sort key (every output table the matcher writes, except 
 
 def read_output(db: Path, table: str, keys: list[str] | None = None) -> pl.DataFrame | None:
     with duckdb.connect(str(db), read_only=True) as con:
-        # tables, or views over the Parquet a Spark run wrote (logiq_sql/spark_out.py)
+        # tables, or views over the Parquet a Spark run wrote (logiq_sql/matching/spark_out.py)
         have = {r[0] for r in con.execute("select table_name from information_schema.tables").fetchall()}
         if table not in have:
             return None
@@ -155,11 +155,11 @@ def test_spark_matches_duckdb_on_a_simulated_junction(spark, tmp_path_factory):
 
 def test_spark_writes_the_results_of_a_dataset_itself(spark, tmp_path, monkeypatch, capsys):
     """``match --engine spark --dataset DIR --out OUT``: Spark writes every output table as Parquet partitioned by
-    scenario and drive (logiq_sql/spark_out.py), nothing of the results comes back to the driver, and the views
+    scenario and drive (logiq_sql/matching/spark_out.py), nothing of the results comes back to the driver, and the views
     in OUT/logiq.duckdb give DuckDB's results. A rerun replaces partitions (no duplicates); a drive added to the
     dataset later is matched alone, incrementally."""
     from logiq_sql.cli import EXIT_OK, main
-    from logiq_sql.engines import SparkEngine
+    from logiq_sql.engines.spark_engine import SparkEngine
 
     cr, nu = DATA / "commonroad_ngsim/scenarios_2018b", DATA / "nuscenes_mini_scenarionet"
     first = [("commonroad", [cr / "USA_US101-22_1_T-1.xml.gz"])]
@@ -172,7 +172,7 @@ def test_spark_writes_the_results_of_a_dataset_itself(spark, tmp_path, monkeypat
     asked = []  # every query the driver collected: only counts for the progress lines may come back
     collect = SparkEngine.frame
     monkeypatch.setattr(SparkEngine, "frame", lambda self, sql: asked.append(sql) or collect(self, sql))
-    monkeypatch.setattr("logiq_sql.engines._copy_into_duckdb", lambda *a: pytest.fail("a table came to the driver"))
+    monkeypatch.setattr("logiq_sql.engines.base.copy_into_duckdb", lambda *a: pytest.fail("a table came to the driver"))
 
     def both(ingests, *extra) -> Path:
         duck = tmp_path / f"duck_{len(ingests)}.duckdb"
@@ -230,7 +230,7 @@ def test_lint_runs_queries_on_spark_and_reports_what_fails(spark, tmp_path):
     root = tmp_path / "queries"
     (root / "phases").mkdir(parents=True)
     (root / "phases/odd.sql").write_text("select regexp_full_match(kind, 'c.*') as m from tracks")
-    from logiq_sql.lint import spark_problems_in
+    from logiq_sql.cli.lint import spark_problems_in
 
     text = sqlglot.transpile((root / "phases/odd.sql").read_text(), read="duckdb", write="spark")[0]
     problems = spark_problems_in(spark, "phases/odd.sql", text, {})
@@ -239,8 +239,8 @@ def test_lint_runs_queries_on_spark_and_reports_what_fails(spark, tmp_path):
 
 def test_rendered_spark_sql_binds_its_parameters_and_parses(spark):
     """render --engine spark: the values are comments and args, never SQL text; Spark parses the statement."""
-    from logiq_sql.engines import render_spark_steps
-    from logiq_sql.match import parse_ego, render, resolve_scenarios, run_values, scenario_steps
+    from logiq_sql.engines.spark_engine import render_spark_steps
+    from logiq_sql.matching.match import parse_ego, render, resolve_scenarios, run_values, scenario_steps
 
     for s in resolve_scenarios(None, {"max_distance_from_cyclist": "6m"}):
         values = run_values(s, parse_ego("auto"), 200.0)

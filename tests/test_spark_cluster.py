@@ -14,7 +14,7 @@ which holds the dependencies (docs/engines.md: packing them for a cluster). The 
 imported logiq_sql from the shipped zip, and that both workers' executors ran tasks (their own logs). The SUMO
 junction goes from Parquet to Parquet, as a fleet's drives would: read from a dataset written by ``ingest
 --dataset`` (the executors read it themselves), its results written by the executors under ``--out``
-(logiq_sql/spark_out.py). The scenarios' SQL on Spark, every scenario and the real drives, is test_spark.py's
+(logiq_sql/matching/spark_out.py). The scenarios' SQL on Spark, every scenario and the real drives, is test_spark.py's
 (local mode): the same statements, so the cluster runs two scenarios of the junction, not all of them again."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from test_spark import DATA, LEFT_TURN, OUTPUTS, assert_same_outputs, read_outpu
 
 from logiq_sql import ingest, match
 from logiq_sql.cli import EXIT_OK, main
-from logiq_sql.dataset_ingest import ingest_dataset
+from logiq_sql.ingestion.dataset_ingest import ingest_dataset
 
 pytestmark = pytest.mark.spark_cluster
 WORKERS = 2
@@ -86,7 +86,7 @@ def test_a_standalone_cluster_matches_like_duckdb(cluster, session, tmp_path):
 
     # the SUMO junction from Parquet to Parquet: a dataset (ingest --dataset) the executors read themselves, the
     # encroachment areas (shapely) per drive on the executors (SparkEngine.derive), and the results written by
-    # the executors as Parquet partitioned by scenario and drive (logiq_sql/spark_out.py)
+    # the executors as Parquet partitioned by scenario and drive (logiq_sql/matching/spark_out.py)
     sumo = [DATA / "sumo/junction_s1"]
     duck, folder, out = tmp_path / "sumo.duckdb", tmp_path / "sumo_dataset", tmp_path / "sumo_out"
     ingest("sumo", sumo, duck)

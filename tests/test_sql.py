@@ -6,12 +6,12 @@ import duckdb
 import polars as pl
 import sqlglot
 
-from logiq_sql.lint import lint_sql, lint_tree
-from logiq_sql.match import match
-from logiq_sql.paths import data_dir
-from logiq_sql.plan import parse_ego, render, run_values, scenario_queries
-from logiq_sql.scenario import list_scenarios
-from logiq_sql.sql import bind, placeholders
+from logiq_sql.cli.lint import lint_sql, lint_tree
+from logiq_sql.core.paths import data_dir
+from logiq_sql.core.sql import bind, placeholders
+from logiq_sql.matching.match import match, render
+from logiq_sql.spec.plan import parse_ego, run_values, scenario_queries
+from logiq_sql.spec.scenario import list_scenarios
 from tests.helpers import Y1, actor, make_db, times
 
 

@@ -1,4 +1,4 @@
-"""The step cache (logiq_sql/step_cache.py): after a change of a step's SQL, of a parameter, or of a drive's rows,
+"""The step cache (logiq_sql/storage/step_cache.py): after a change of a step's SQL, of a parameter, or of a drive's rows,
 exactly the steps that depend on it run again, the rest are read from the cache, and the results are those of a
 run that recomputes everything (``match --force``)."""
 
@@ -10,9 +10,10 @@ from pathlib import Path
 import duckdb
 import pytest
 
-from logiq_sql import ingest, match, sql
-from logiq_sql.plan import parse_ego, phase_steps, resolve_scenarios, run_values
-from logiq_sql.sql import bind, tables_read
+from logiq_sql import ingest, match
+from logiq_sql.core import sql
+from logiq_sql.core.sql import bind, tables_read
+from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
 
 ROOT = Path(__file__).resolve().parents[1]
 NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"

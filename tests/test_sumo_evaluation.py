@@ -2,7 +2,7 @@
 
 simulate (gradual 3 s lane changes, trucks and buses, a 3-lane junction with creeping left-turners) -> label from
 SUMO's records -> perceived copies (exact, and the issue's perception-like noise) -> ingest -> match with trucks
-and buses among the egos -> evaluate (``logiq_sql.evaluation.campaign.score_drive``, the code behind the tables of
+and buses among the egos -> evaluate (``logiq_sql.cli.campaign.score_drive``, the code behind the tables of
 docs/evaluation.md). Event F1 >= 0.95 for follower_vehicle and sut_cut_out on a motorway drive and for
 cyclist_close_to_moving_sut on a junction drive, >= 0.90 for the left turn; >= 0.90 for each with noise (0.2 m
 position, 1 deg heading, 0.1 m/s speed, 2 % of detections dropped). Also logiq_sql's per-frame TTC against SUMO's
@@ -20,14 +20,14 @@ import duckdb
 import polars as pl
 import pytest
 
-from logiq_sql import db as logiq_db
 from logiq_sql import match
 from logiq_sql.cli import main
-from logiq_sql.evaluation.campaign import CONFLICT_SCENARIO, NOISE, Setup, score_drive
+from logiq_sql.cli.campaign import CONFLICT_SCENARIO, NOISE, Setup, score_drive
+from logiq_sql.core.units import factor
 from logiq_sql.evaluation.crosscheck import read_ssm_following_ttc, ttc_against_ssm
 from logiq_sql.evaluation.simulate import Regime
-from logiq_sql.readers.sumo import read_fcd
-from logiq_sql.units import factor
+from logiq_sql.ingestion.readers.sumo import read_fcd
+from logiq_sql.storage import db as logiq_db
 
 pytestmark = pytest.mark.sumo
 MOTORWAY_SEED, JUNCTION_SEED = 950, 951

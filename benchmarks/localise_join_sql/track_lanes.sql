@@ -1,4 +1,4 @@
--- benchmark, not wired in: track_lanes (map localisation) as a join; ingest uses logiq_sql/localise.py
+-- benchmark, not wired in: track_lanes (map localisation) as a join; ingest uses logiq_sql/ingestion/localise.py
 -- grain: one row per (drive_id, actor_id, frame, lane_id) with the box centre within $range_m of the lane polygon
 -- reads: tracks (staged), _drive_maps (drive_id, map_no: the drives to localise and their maps), lane_grid
 --        (benchmarks.localise_join.lane_grid: the map's lane pieces by cell), lane_names (lane_no, lane_id)

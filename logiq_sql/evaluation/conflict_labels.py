@@ -49,7 +49,7 @@ from logiq_sql.evaluation.labels import (
     on_paths,
     scenario_values,
 )
-from logiq_sql.readers.sumo import run_folders
+from logiq_sql.ingestion.readers.sumo import run_folders
 
 SCENARIO = "unprotected_left_turn_with_yield_and_traffic_light"
 LABELLER = "conflict: the vehicle the Ego waited for before it set off (events of fcd, net, tls_states)"

@@ -16,7 +16,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql.errors import InputError
+from logiq_sql.core.errors import InputError
 
 FOLLOWING_FOLLOWER = "2"  # SSM encounter type: the reporting vehicle (ego) follows the foe
 SSM_SCHEMA = {"ego_id": pl.String, "actor_id": pl.String, "t_s": pl.Float64, "ssm_ttc_s": pl.Float64}

@@ -20,8 +20,8 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql import db
-from logiq_sql.errors import InputError, did_you_mean
+from logiq_sql.core.errors import InputError, did_you_mean
+from logiq_sql.storage import db
 
 KEY = ["drive_id", "scenario", "ego_id", "actor_id"]
 LABEL_COLUMNS = {

@@ -23,8 +23,9 @@ import numpy as np
 import polars as pl
 import shapely
 
-from logiq_sql.errors import InputError, ScenarioError, did_you_mean
-from logiq_sql.readers.sumo import (
+from logiq_sql.core.errors import InputError, ScenarioError, did_you_mean
+from logiq_sql.core.schema import VEHICLE_KINDS
+from logiq_sql.ingestion.readers.sumo import (
     parse_sumo_xml,
     read_fcd,
     read_vtypes,
@@ -34,8 +35,7 @@ from logiq_sql.readers.sumo import (
     shape_coords,
     xml_records,
 )
-from logiq_sql.scenario import load_scenario
-from logiq_sql.schema import VEHICLE_KINDS
+from logiq_sql.spec.scenario import load_scenario
 
 SCENARIOS = ("follower_vehicle", "sut_cut_out", "cyclist_close_to_moving_sut",
              "unprotected_left_turn_with_yield_and_traffic_light")

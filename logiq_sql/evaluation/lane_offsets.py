@@ -21,7 +21,7 @@ import sys
 import shapely
 from shapely.ops import linemerge
 
-from logiq_sql.db import connect
+from logiq_sql.storage.db import connect
 
 STEP_FRAMES = 5  # every 0.5 s at NGSIM's and nuScenes' 10 Hz
 LINKS = 4  # the lanes that continue the start lane, and those that lead into it

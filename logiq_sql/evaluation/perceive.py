@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from logiq_sql.errors import InputError
-from logiq_sql.readers.sumo import read_fcd, run_file
+from logiq_sql.core.errors import InputError
+from logiq_sql.ingestion.readers.sumo import read_fcd, run_file
 
 # the FCD columns a reader of tracks uses, under SUMO's native Parquet names
 _NATIVE = {"t_s": "timestep_time", "vehicle_id": "vehicle_id", "type_id": "vehicle_type", "x_m": "vehicle_x",

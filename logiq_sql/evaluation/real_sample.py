@@ -22,8 +22,8 @@ import shapely
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
-from logiq_sql.db import connect
-from logiq_sql.plots import ACTOR_COLOUR, EGO_COLOUR, birds_eye
+from logiq_sql.outputs.plots import ACTOR_COLOUR, EGO_COLOUR, birds_eye
+from logiq_sql.storage.db import connect
 
 NEAR_M = 40.0
 

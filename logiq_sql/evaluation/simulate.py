@@ -20,9 +20,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from logiq_sql.errors import LogiqError
+from logiq_sql.core.errors import LogiqError
 from logiq_sql.evaluation.perceive import Noise, perceive
-from logiq_sql.readers.sumo import sumo_bin
+from logiq_sql.ingestion.readers.sumo import sumo_bin
 
 KINDS = ("motorway", "junction")
 STEP_S = 0.1

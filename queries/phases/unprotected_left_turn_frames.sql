@@ -89,7 +89,7 @@ pair_frames as (
 ),
 
 occupancy as (
-    -- each encroachment's occupancy stretches, on the ego's and on the actor's own path (logiq_sql/encroachment.py)
+    -- each encroachment's occupancy stretches, on the ego's and on the actor's own path (logiq_sql/matching/encroachment.py)
     select
         x.*,
         x.ego_occupancy_from_s_m as ego_occupancy_lo_m,

@@ -12,7 +12,7 @@
 -- within metres, lane-following ones up to a 5 s headway.
 --
 -- Only actors whose kind is in relation_kinds_csv (',cyclist,') are related: the kinds some scenario of the run
--- can use (each scenario's `relation_kinds`, every kind when one leaves it unset; logiq_sql.plan.relation_kinds_csv).
+-- can use (each scenario's `relation_kinds`, every kind when one leaves it unset; logiq_sql.spec.plan.relation_kinds_csv).
 -- A run of cyclist_close_to_moving_sut alone relates cyclists only; a run with any lane-following or junction
 -- scenario relates every kind (the nearest road user ahead or behind may be of any kind), so its rows are the full
 -- relation. relations_of(drive_id, ego_id) gives every kind, whatever a run kept (docs/semantics.md).
@@ -50,8 +50,8 @@ ego as (
     -- each ego row three times, once per band of x it may meet actors in: bands are as wide as the larger range
     -- (relation_range, object_relation_range) plus 1 m, so every actor within range is in the ego's band or the
     -- next one on either side, and the pair join below is an equi-join on (drive, frame, band) instead of on
-    -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (0.9
-    -- instead of 1.5 CPU s for the join at tier S). The range test is the same, so the pairs are the same; the
+    -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (a
+    -- cheaper join: benchmarks/README.md). The range test is the same, so the pairs are the same; the
     -- extra metre keeps a pair at exactly the range in a neighbouring band whatever the rounding of the divisions
     select
         t.*,

@@ -15,8 +15,8 @@
 --
 -- Speed: the rows arrive in track order, so every window runs over that order (an empty OVER (), which DuckDB
 -- guarantees keeps the input order of one table: docs "Order Preservation") and a neighbour counts only when it
--- has the row's track_no. Partitions by drive and actor sort on strings: 2.6 s of CPU against 0.95 s for these
--- windows over 1 M rows (tier S), with identical results. DuckDB only: Spark keeps no input order.
+-- has the row's track_no. Partitions by drive and actor would sort on strings, several times the CPU of these
+-- windows for identical results (benchmarks/README.md). DuckDB only: Spark keeps no input order.
 with
 
 neighbours as (

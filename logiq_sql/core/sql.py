@@ -1,0 +1,160 @@
+"""Read query files, find their parameters, bind them, run them, and render them for people."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import re
+from collections.abc import Iterator
+
+import duckdb
+import sqlglot
+from sqlglot import exp
+
+from logiq_sql.core import units
+from logiq_sql.core.errors import ScenarioError
+from logiq_sql.core.paths import query_path
+
+_UNIT_CONSTANT = re.compile(r"^([a-z0-9]+)_per_([a-z0-9]+)$")
+
+
+def shown_path(relative: str) -> str:
+    """A query as people know it: ``queries/<relative>`` for a built-in one, the path of a user's file."""
+    return relative if relative.startswith("/") else f"queries/{relative}"
+
+
+@functools.cache
+def query_text(relative: str) -> str:
+    path = query_path(relative)
+    if not path.is_file():
+        raise ScenarioError(f"query file {shown_path(relative)} not found.")
+    return path.read_text()
+
+
+@functools.cache
+def _parse(relative: str) -> exp.Expression:
+    return sqlglot.parse_one(query_text(relative), read="duckdb")
+
+
+def parsed(relative: str) -> exp.Expression:
+    """queries/<relative> as a sqlglot tree (DuckDB dialect), parsed once per process; each caller gets its own
+    copy, free to change."""
+    return _parse(relative).copy()
+
+
+@contextlib.contextmanager
+def registered(con: duckdb.DuckDBPyConnection, name: str, frame) -> Iterator[str]:
+    """``frame`` (Polars or Arrow) readable as the table ``name`` on ``con`` inside the block, and unregistered after
+    it, also when the block fails."""
+    con.register(name, frame)
+    try:
+        yield name
+    finally:
+        con.unregister(name)
+
+
+@functools.cache
+def placeholders(relative: str) -> tuple[str, ...]:
+    """The ``$name`` parameters a query file uses, in order of first use."""
+    tree = _parse(relative)
+    seen: dict[str, None] = {}
+    for node in tree.find_all(exp.Placeholder):
+        seen[node.name] = None
+    return tuple(seen)
+
+
+@functools.cache
+def tables_read(relative: str) -> frozenset[str]:
+    """The names of the tables a query file reads (its CTEs' names included: a superset)."""
+    return frozenset(t.name for t in _parse(relative).find_all(exp.Table))
+
+
+@functools.cache
+def cte_names(relative: str) -> frozenset[str]:
+    """The names of the CTEs a query file defines."""
+    return frozenset(c.alias for c in _parse(relative).find_all(exp.CTE))
+
+
+def unit_constant(name: str) -> float | None:
+    """``mph_per_mps`` -> how many mph one m/s is. None if ``name`` is not such a constant."""
+    m = _UNIT_CONSTANT.match(name)
+    if not m or m.group(1) not in units.UNITS or m.group(2) not in units.UNITS:
+        return None
+    return units.factor(m.group(2)) / units.factor(m.group(1))
+
+
+def bind(relative: str, values: dict[str, object]) -> dict[str, object]:
+    """The values for exactly the parameters ``relative`` uses; unit constants are computed."""
+    out: dict[str, object] = {}
+    for name in placeholders(relative):
+        if name in values:
+            out[name] = values[name]
+        elif (const := unit_constant(name)) is not None:
+            out[name] = const
+        else:
+            raise ScenarioError(f"{shown_path(relative)} uses ${name}, which no scenario parameter provides.")
+    return out
+
+
+def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
+    """A step as its query file and the values it binds: two steps with one key compute the same rows from the
+    same tables."""
+    return relative, tuple(sorted(bind(relative, values).items()))
+
+
+# Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:
+# dict-surviving cache: global dictionary column 0 changed identity after being seeded for dictionary caching" (its
+# dictionary-aware caching operator, added by duckdb/duckdb#23447) on the bundled SUMO junction; on one thread it gives the rows. Remove an entry
+# when a DuckDB release no longer fails (tests/test_relations_of.py and the golden test run that drive).
+SINGLE_THREADED = ("relations/ego_lanes.sql",)
+
+
+def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object],
+                holding: bool = False) -> None:
+    """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours);
+    ``holding``: only the rows whose ``holds`` is true (``Engine.materialise``)."""
+    query = query_text(relative)
+    statement = f"create or replace temp table {table} as " + (
+        f"select * from (\n{query}\n) as step where holds" if holding else query)
+    if relative not in SINGLE_THREADED:
+        con.execute(statement, bind(relative, values))
+        return
+    threads = con.execute("select current_setting('threads')").fetchone()[0]
+    con.execute("set threads = 1")
+    try:
+        con.execute(statement, bind(relative, values))
+    finally:
+        con.execute(f"set threads = {int(threads)}")
+
+
+def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:
+    """Rebuild the coverage histograms from every stored coverage sample (after matches were added or removed)."""
+    con.execute("delete from coverage")
+    con.execute("insert into coverage select * from (" + query_text("coverage/histogram.sql") + ")")
+
+
+def sql_literal(value: object) -> str:
+    if isinstance(value, str):
+        return "'" + value.replace("'", "''") + "'"
+    if value is None:
+        return "null"
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def used_values(steps: list[tuple[str, str]], values: dict[str, object]) -> dict[str, object]:
+    used: dict[str, object] = {}
+    for _, rel in steps:
+        used.update(bind(rel, values))
+    return used
+
+
+def render_steps(steps: list[tuple[str, str]], values: dict[str, object]) -> str:
+    """One statement a person can read and run in DuckDB: ``SET VARIABLE`` lines for the bound values, then
+    the steps as CTEs ending in the last one. DuckDB reads ``$name`` as ``getvariable('name')``."""
+    lines = [f"set variable {name} = {sql_literal(v)};" for name, v in used_values(steps, values).items()]
+    ctes = []
+    for name, rel in steps[:-1]:
+        body = "\n".join("    " + line if line else "" for line in query_text(rel).rstrip().splitlines())
+        ctes.append(f"{name} as (\n{body}\n)")
+    last = query_text(steps[-1][1]).rstrip()
+    return "\n".join(lines) + "\n\nwith\n\n" + ",\n\n".join(ctes) + "\n\n" + "select * from (\n" + last + "\n);\n"

@@ -1,0 +1,119 @@
+"""The DuckDB engine, the reference: every step a temp table of the DuckDB file's connection."""
+
+from __future__ import annotations
+
+import time
+
+import duckdb
+import polars as pl
+
+from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, tables_read
+from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, as_query, copy_into_duckdb
+from logiq_sql.storage.db import stored_schema
+
+
+class DuckEngine(Engine):
+    """The reference: every step is a temp table of the DuckDB file's connection."""
+
+    name = "duckdb"
+
+    def __init__(self, con: duckdb.DuckDBPyConnection, cache=None):
+        self.con = con
+        self.cache = cache  # a logiq_sql.storage.step_cache.StepCache, or None: every step runs
+        self._shared: frozenset[tuple[str, tuple]] = frozenset()
+        self._kept: dict[tuple[str, tuple], str] = {}  # a shared step -> the temp table holding its rows
+        self._views: set[str] = set()  # step tables that are views of a kept table
+        self._keys: dict[str, str | None] = {}  # the batch's step tables -> their cache keys (None: not cacheable)
+
+    def _cache_key(self, text: str, bound: dict[str, object], reads: frozenset[str]) -> str | None:
+        """The step's cache key, or None when the cache is off or the step reads a table of unknown content."""
+        if self.cache is None or not self.cache.usable:
+            return None
+        inputs: dict[str, str] = {}
+        for name in reads:
+            if name in self._keys:
+                if self._keys[name] is None:
+                    return None
+                inputs[name] = self._keys[name]
+            elif name not in DRIVE_INPUT_NAMES:
+                return None
+        return self.cache.key(text, bound, inputs)
+
+    def _cached(self, table: str, step: str, key: str | None, compute) -> None:
+        """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept)."""
+        if key is not None and self.cache.load(table, key):
+            self._keys[table] = key
+            self.cache.record(self.owners, step, table, key, computed=False)
+            return
+        started = time.process_time()
+        compute()
+        self._keys[table] = key
+        if key is not None:
+            self.cache.record(self.owners, step, table, key, computed=True,
+                              compute_s=time.process_time() - started)
+
+    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+        if table in self._views:  # a table cannot replace a view
+            self.con.execute(f"drop view {table}")
+            self._views.discard(table)
+        text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
+        key = self._cache_key(text, bind(relative, values), tables_read(relative) - cte_names(relative))
+        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
+
+    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
+        key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
+        self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
+
+    def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
+        key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
+        if key not in self._shared:
+            materialise(self.con, table, relative, values, holding)
+            return
+        # computed once, read by each scenario through a view: copying a shared step's rows costs a fraction of
+        # computing them again (benchmarks/README.md, "Figures behind the code's comments")
+        if key not in self._kept:  # (shared steps are phase steps of a match: each reader asks for the same rows)
+            self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
+            materialise(self.con, self._kept[key], relative, values, holding)
+        self.con.execute(f"drop table if exists temp.main.{table}")
+        self.con.execute(f"create temp view {table} as select * from {self._kept[key]}")
+        self._views.add(table)
+
+    def share(self, steps: frozenset[tuple[str, tuple]]) -> None:
+        self._forget_shared()
+        self._shared = steps
+
+    def _forget_shared(self) -> None:
+        for view in self._views:
+            self.con.execute(f"drop view if exists {view}")
+        for kept in self._kept.values():
+            self.con.execute(f"drop table if exists {kept}")
+        self._shared, self._kept, self._views = frozenset(), {}, set()
+
+    def frame(self, sql: str) -> pl.DataFrame:
+        return self.con.sql(as_query(sql)).pl()
+
+    def register(self, table: str, frame: pl.DataFrame) -> None:
+        copy_into_duckdb(self.con, table, frame)
+        self._keys[table] = None  # rows from elsewhere: steps reading them are not cached
+
+    def select_drives(self) -> None:
+        self._keys = {}
+        if self.cache is not None:
+            self.cache.start_batch()
+        # a temp table shadows the stored table of the same name, so every query of the batch reads the batch's
+        # rows: a batch then costs what its drives hold, not what the whole file holds (queries reading the whole
+        # track_lanes per batch made matching grow with batches x file size)
+        stored = stored_schema(self.con)
+        (others,) = self.con.execute(f"select count(*) from {stored}.drive_inputs where status = 'ingested' and "
+                                     "drive_id not in (select drive_id from run_drives)").fetchall()[0]
+        if not others:  # the batch is every drive of the file: its tables already hold just the batch's rows
+            return
+        for table in PARTITIONED_BY_DRIVE:
+            self.con.execute(f"create or replace temp table {table} as select * from {stored}.{table} "
+                             "where drive_id in (select drive_id from run_drives)")
+
+    def release_drives(self) -> None:
+        self._forget_shared()
+        self._keys = {}
+        for table in PARTITIONED_BY_DRIVE:
+            self.con.execute(f"drop table if exists temp.main.{table}")

@@ -1,0 +1,1 @@
+"""What users read from a run: the HTML report, plots, replays, OpenSCENARIO and OpenLABEL exports."""

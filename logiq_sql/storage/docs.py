@@ -1,0 +1,56 @@
+"""docs/tables.md, generated from the tables' declarations (`make docs`)."""
+
+from __future__ import annotations
+
+from logiq_sql.core.schema import duckdb_type
+from logiq_sql.storage.tables import DRIVES_DOC, TABLES
+
+
+def docs_markdown() -> str:
+    """The tables as a markdown page (docs/tables.md is generated from this by `make docs`)."""
+    out = ["# Tables in the logiq_sql DuckDB file", "",
+           "Generated from `logiq_sql/core/schema.py` and `logiq_sql/storage/tables.py` (`make docs`). Every column also carries "
+           "this text as a DuckDB comment: `select * from duckdb_columns() where comment is not null`.", ""]
+    for table in (*TABLES,):
+        out += [f"## `{table.name}`", "", table.doc, "", "| column | type | meaning |", "|---|---|---|"]
+        out += [f"| `{c.name}` | {duckdb_type(c.dtype).lower()} | {c.doc} |" for c in table.columns]
+        out.append("")
+    out += ["## `kpis`", "",
+            "One row per match: `match_id`, `scenario`, then every KPI and sampled coverage value of the scenarios "
+            "in `scenarios/`, in the spec's units (the suffix); NULL where a scenario does not record it or the "
+            "value is undefined. Columns are added as scenarios are run.", "",
+            "| column | unit | meaning |", "|---|---|---|"]
+    from logiq_sql.spec.scenario import list_scenarios
+
+    seen: set[str] = set()
+    for s in list_scenarios():
+        for column, (unit, _sql_type, doc) in s.metric_columns().items():
+            if column not in seen:
+                seen.add(column)
+                out.append(f"| `{column}` | {unit} | {doc} |")
+    out += ["", "## `relations` and `ego_lanes`", "",
+            "Kept from the last match run of each drive, for analysts: see docs/semantics.md for every column "
+            "(`queries/relations/relations.sql`, `queries/relations/ego_lanes.sql`). In the file, their columns carry "
+            "the descriptions of those files' headers as comments (as do `passages` and `encroachments`).", "",
+            ("`relations` (kept with `match --keep`) holds the actors of the kinds some scenario of that run can use: "
+             "the union of the scenarios' `relation_kinds` (docs/scenarios.md), every kind when one of them leaves "
+             "it unset, as every built-in scenario but `cyclist_close_to_moving_sut` (`relation_kinds = "
+             "[\"cyclist\"]`) does. A run of the cyclist scenario alone keeps its cyclists only; a run with any "
+             "other keeps the full relation. `relations_of(drive_id, ego_id)`, a table macro `match` creates in the "
+             "file, gives the full relation of any ego on demand (`logiq_sql/matching/relations_of.py`)."), "",
+            "## `passages` and `encroachments`", "",
+            "Kept from the last run of a junction scenario on each drive: every stay of an ego or related actor in a "
+            "junction with its entry and exit, legs and turn (`queries/junctions/passages.sql`), and the encroachment "
+            "area of every ego-actor pair whose paths through a junction cross, as WKT with the stretch of each "
+            "path along which its box overlaps the area (`logiq_sql/matching/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
+            "traffic_light.", "",
+            "## `step_cache_<key>`", "",
+            "The rows of one step of a match run, for every drive whose `step_cache` entry names the table: the "
+            "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them. "
+            "`match` reads them back instead of running the step again when the step's query text, bound values "
+            "and inputs and the drive's ingest version are the same (`logiq_sql/storage/step_cache.py`; README, 'The step "
+            "cache'). Rows no entry refers to are deleted, a table with none dropped; `logiq-sql cache --db FILE` "
+            "gives their size, `--clear` drops them all.", "",
+            "## `drives` (view)", "",
+            "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
+    return "\n".join(out)

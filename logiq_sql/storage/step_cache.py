@@ -1,0 +1,269 @@
+"""The step cache: every step's output kept in the DuckDB file, per drive, and read back instead of recomputed.
+
+A step's key is a digest of what its rows depend on: the query text it runs, the values it binds, the keys of the
+step tables it reads (so a changed step changes every step downstream of it), the DuckDB version and CACHE_FORMAT.
+What it reads of the canonical tables is the drive's: the index (``step_cache``) records, per scenario, step and
+drive, the key and the drive's ``ingest_versions.ingest_version`` it was computed from. A batch of drives reads a
+step from the cache only when every drive of the batch has an entry of that key for its current ingest version;
+else the step runs and its rows replace the batch's entry. The rows of one key live in ``step_cache_<key>``.
+
+Size stays bounded: each scenario keeps one entry per step and drive (its latest), and rows no scenario refers to
+any more are deleted, a table with none dropped. Re-ingesting a drive (or another drive on its map) gives it a new
+ingest version and drops its entries (``drop_drives``). Drives with no ingest version (files written before the
+cache, datasets attached as views) are never cached. The Spark and Polars engines do not use the cache.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import os
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+
+import duckdb
+import polars as pl
+
+from logiq_sql.core.errors import LogiqError
+from logiq_sql.storage import tables
+from logiq_sql.storage.db import stored_schema
+
+CACHE_FORMAT = "1"  # bump when what a key covers changes
+TABLE_PREFIX = "step_cache_"
+# every step is kept until this many cells were written in the run: a write has a fixed cost, so the cost per cell
+# of a few small tables would make every large one look too dear to keep
+CALIBRATION_CELLS = 1_000_000
+
+
+def cache_key(text: str, bound: dict[str, object], inputs: dict[str, str]) -> str:
+    """The key of a step: its query text (or a Python step's source), its bound values and its inputs' keys."""
+    payload = json.dumps([CACHE_FORMAT, duckdb.__version__, text,
+                          sorted((k, type(v).__name__, repr(v)) for k, v in bound.items()),
+                          sorted(inputs.items())])
+    return hashlib.sha256(payload.encode()).hexdigest()[:24]
+
+
+def source_text(function) -> str:
+    """The source of the module that defines ``function``: a Python step's 'query text'."""
+    return inspect.getsource(sys.modules[function.__module__])
+
+
+MODE_ENV = "LOGIQ_SQL_STEP_CACHE"
+MODES = ("auto", "all", "off")  # keep the steps worth keeping (the default), keep every step, no cache
+
+
+def mode() -> str:
+    """$LOGIQ_SQL_STEP_CACHE, checked."""
+    value = os.environ.get(MODE_ENV, "auto")
+    if value not in MODES:
+        raise LogiqError(f"${MODE_ENV}={value}: choose one of {', '.join(MODES)} (auto keeps the steps that cost "
+                         "more to compute than to keep, all keeps every step, off uses no cache).")
+    return value
+
+
+def new_version() -> str:
+    return uuid.uuid4().hex
+
+
+def set_versions(con: duckdb.DuckDBPyConnection, drives: str) -> None:
+    """Give every drive of the query ``drives`` (a select of drive_id) a new ingest version and drop its cache
+    entries; called by ingest inside its transaction."""
+    con.execute(f"create or replace temp table _versioned as select distinct drive_id from ({drives})")
+    drop_drives(con, "select drive_id from _versioned")
+    con.execute("delete from ingest_versions where drive_id in (select drive_id from _versioned)")
+    con.execute("insert into ingest_versions select drive_id, $v || '-' || drive_id from _versioned",
+                {"v": new_version()})
+    con.execute("drop table _versioned")
+
+
+def cache_tables(con: duckdb.DuckDBPyConnection) -> list[str]:
+    return [r[0] for r in con.execute(
+        "select table_name from duckdb_tables() where not temporary and starts_with(table_name, $p) "
+        "and database_name = current_database() order by table_name", {"p": TABLE_PREFIX}).fetchall()]
+
+
+def drop_drives(con: duckdb.DuckDBPyConnection, drives: str) -> None:
+    """Drop every cache entry of the drives of the query ``drives`` (a select of drive_id)."""
+    stored = stored_schema(con)
+    for table in cache_tables(con):
+        con.execute(f"delete from {stored}.{table} where drive_id in ({drives})")
+    con.execute(f"delete from step_cache where drive_id in ({drives})")
+    _drop_unreferenced(con, stored)
+
+
+def clear(con: duckdb.DuckDBPyConnection) -> None:
+    stored = stored_schema(con)
+    for table in cache_tables(con):
+        con.execute(f"drop table {stored}.{table}")
+    con.execute("delete from step_cache")
+
+
+def _drop_unreferenced(con: duckdb.DuckDBPyConnection, stored: str) -> None:
+    used = {r[0] for r in con.execute("select distinct table_name from step_cache").fetchall()}
+    for table in cache_tables(con):
+        if table not in used:
+            con.execute(f"drop table {stored}.{table}")
+
+
+def size(con: duckdb.DuckDBPyConnection) -> dict[str, int]:
+    """The cache's tables, rows, index entries and bytes (DuckDB's blocks of those tables)."""
+    tables = cache_tables(con)
+    rows = sum(con.execute(f"select count(*) from {stored_schema(con)}.{t}").fetchall()[0][0] for t in tables)
+    blocks: set[int] = set()  # small tables share blocks
+    for t in tables:
+        blocks |= {r[0] for r in con.execute(f"select distinct block_id from pragma_storage_info('{t}') "
+                                             "where block_id is not null").fetchall()}
+    (block_size,) = con.execute("select block_size from pragma_database_size()").fetchall()[0]
+    (entries,) = con.execute("select count(*) from step_cache").fetchall()[0]
+    return {"tables": len(tables), "rows": rows, "entries": entries, "bytes": len(blocks) * block_size}
+
+
+def describe(sizes: dict[str, int]) -> str:
+    return (f"{sizes['rows']:,} rows in {sizes['tables']} table(s), {sizes['entries']:,} index entries, "
+            f"about {sizes['bytes'] / 1e6:,.1f} MB")
+
+
+@dataclass
+class StepCache:
+    """The cache of one match run, on its connection. ``read`` False (``match --force``): every step runs, and its
+    rows still replace the cache's."""
+
+    con: duckdb.DuckDBPyConnection
+    read: bool = True
+    keep_all: bool = False  # keep every computed step, not only those that cost more to compute than to keep
+    reused: int = 0
+    computed: int = 0
+    uncached: int = 0
+    not_kept: int = 0
+    _write_s: float = 0.0  # what keeping steps cost in this run, and how many cells they had
+    _cells: int = 0
+    # (the batch's drives, the scenarios, step, 'reused' | 'computed'), in order
+    steps: list[tuple[tuple[str, ...], tuple[str, ...], str, str]] = field(default_factory=list)
+    _batch: tuple[str, ...] = ()
+    _usable: bool = False
+
+    key = staticmethod(cache_key)
+    source_text = staticmethod(source_text)
+
+    def start_batch(self) -> None:
+        """The batch's drives (``run_drives``) with their ingest versions; the cache is off for the batch when a
+        drive has none."""
+        self.con.execute("create or replace temp table _batch_versions as select r.drive_id, v.ingest_version "
+                         "from run_drives as r left join ingest_versions as v using (drive_id)")
+        (missing, n) = self.con.execute("select count(*) filter (where ingest_version is null), count(*) "
+                                        "from _batch_versions").fetchall()[0]
+        self._usable = n > 0 and missing == 0
+        self._batch = tuple(r[0] for r in self.con.execute("select drive_id from _batch_versions "
+                                                             "order by drive_id").fetchall())
+
+    @property
+    def usable(self) -> bool:
+        return self._usable
+
+    def _holds(self, key: str) -> bool:
+        """Whether every drive of the batch has an entry of ``key`` for its current ingest version."""
+        (n,) = self.con.execute(
+            "select count(distinct c.drive_id) from step_cache as c join _batch_versions as b "
+            "on c.drive_id = b.drive_id and c.ingest_version = b.ingest_version where c.step_key = $k",
+            {"k": key}).fetchall()[0]
+        return n == len(self._batch)
+
+    def _entries(self, step: str, key: str) -> int:
+        """How many (owner, drive) entries of the batch name ``key`` for ``step`` at the current ingest version."""
+        return self.con.execute(
+            "select count(*) from step_cache as c join _batch_versions as b on c.drive_id = b.drive_id "
+            "and c.ingest_version = b.ingest_version where c.step = $s and c.step_key = $k "
+            "and c.scenario in (select scenario from _owners)", {"s": step, "k": key}).fetchall()[0][0]
+
+    def load(self, table: str, key: str) -> bool:
+        """Make the temp table ``table`` the cached rows of ``key`` for the batch, if every drive has them."""
+        if not (self._usable and self.read):
+            return False
+        if not self._holds(key):
+            return False
+        self.con.execute(f"create or replace temp table {table} as select * from "
+                         f"{stored_schema(self.con)}.{TABLE_PREFIX}{key} "
+                         "where drive_id in (select drive_id from _batch_versions)")
+        return True
+
+    def record(self, owners: tuple[str, ...], step: str, table: str, key: str, computed: bool,
+               compute_s: float = 0.0) -> None:
+        """After ``table`` was computed in ``compute_s`` seconds (``computed``) or loaded: the batch's rows kept
+        under ``key`` and each owner's entry for the step pointed at it; rows no entry refers to any more go.
+        A computed step is kept only when computing it took at least what keeping as many cells has cost so far
+        in this run, both in CPU seconds of the process (steadier than wall time on a shared machine; writing a
+        wide per-frame table can cost more than its query), unless ``keep_all``."""
+        if not (self._usable and owners):
+            self.uncached += 1
+            return
+        con, stored, data = self.con, stored_schema(self.con), f"{TABLE_PREFIX}{key}"
+        if computed:
+            columns = {r[0] for r in con.execute(
+                "select column_name from duckdb_columns() where table_name = $t and database_name = 'temp'",
+                {"t": table}).fetchall()}
+            if "drive_id" not in columns:  # rows not per drive (a map's lanes, a match's KPIs): no entry
+                self.uncached += 1
+                return
+        self.steps.append((self._batch, owners, step, "computed" if computed else "reused"))
+        if computed:
+            self.computed += 1
+        else:
+            self.reused += 1
+        write = computed and not self._holds(key)  # match --force recomputes rows the cache already holds
+        if write:
+            (rows,) = con.execute(f"select count(*) from temp.main.{table}").fetchall()[0]
+            cells = rows * len(columns)
+            if (not self.keep_all and self._cells >= CALIBRATION_CELLS
+                    and compute_s < cells * self._write_s / self._cells):
+                self.not_kept += 1
+                return
+            started = time.process_time()
+            # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
+            # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
+            if data not in cache_tables(con):
+                con.execute(f"create table {stored}.{data} as select * from temp.main.{table} limit 0")
+                tables.comment_derived(con, f"{stored}.{data}", data,
+                                   f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
+                                   "name this table (logiq_sql/storage/step_cache.py).", {},
+                                   "As the step's query returns it (step_cache.step names the query; its header "
+                                   "describes the column).")
+        con.register("_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String}))
+        if not write and self._entries(step, key) == len(owners) * len(self._batch):
+            con.unregister("_owners")  # each owner's entry already names this key for every drive of the batch
+            return
+        con.execute("begin transaction")
+        try:
+            if write:
+                con.execute(f"delete from {stored}.{data} where drive_id in (select drive_id from _batch_versions)")
+                con.execute(f"insert into {stored}.{data} select * from temp.main.{table}")
+            con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
+                        "from step_cache where step = $s and step_key <> $k and scenario in (select scenario from "
+                        "_owners) and drive_id in (select drive_id from _batch_versions)", {"s": step, "k": key})
+            con.execute("delete from step_cache where step = $s and scenario in (select scenario from _owners) "
+                        "and drive_id in (select drive_id from _batch_versions)", {"s": step})
+            con.execute("insert into step_cache select o.scenario, $s, b.drive_id, $k, $t, b.ingest_version "
+                        "from _owners as o, _batch_versions as b", {"s": step, "k": key, "t": data})
+            for (old, old_table) in con.execute("select distinct step_key, table_name from _replaced").fetchall():
+                # the drives whose rows of the old key no entry refers to any more
+                con.execute(f"delete from {stored}.{old_table} where drive_id in (select drive_id from _replaced "
+                            "where step_key = $o) and drive_id not in (select drive_id from step_cache where "
+                            "step_key = $o)", {"o": old})
+                if not con.execute("select count(*) from step_cache where step_key = $o", {"o": old}).fetchall()[0][0]:
+                    con.execute(f"drop table {stored}.{old_table}")
+            con.execute("commit")
+            if write:
+                self._write_s += time.process_time() - started
+                self._cells += cells
+        except BaseException:
+            con.execute("rollback")
+            raise
+        finally:
+            con.unregister("_owners")
+
+    def summary(self) -> str:
+        return (f"step cache: {self.reused} step(s) reused, {self.computed} computed"
+                + (f" ({self.not_kept} of them cheaper to recompute than to keep)" if self.not_kept else "")
+                + (f", {self.uncached} not cacheable" if self.uncached else ""))
