@@ -11,7 +11,6 @@ import pytest
 from logiq_sql.cli import main
 from logiq_sql.cli.lint import lint_scenarios
 from logiq_sql.core.errors import ScenarioError
-from logiq_sql.matching.explain import explain
 from logiq_sql.matching.match import match, render
 from logiq_sql.spec.plan import resolve_scenarios
 from logiq_sql.spec.scenario import list_scenarios, load_scenario, scenario_files
@@ -35,18 +34,23 @@ min_duration = "min_follow"
 conditions = [{ name = "close", value = "time_headway_s", test = "<= 2 s" }]
 '''
 OWN_SQL = '''-- phase: close_follower (a user's own)
-select
-    r.drive_id,
-    r.ego_id,
-    r.actor_id,
-    r.frame,
-    r.t_s,
-    0 as segment,
-    coalesce(r.time_headway_s <= 2.0 and r.same_lane and r.dx_m < 0, false) as close,
-    coalesce(r.time_headway_s <= 2.0 and r.same_lane and r.dx_m < 0, false) as holds,
-    r.time_headway_s
-from relations as r
-where instr($kinds_csv, ',' || r.actor_kind || ',') > 0
+with
+
+conditions as (
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        r.frame,
+        r.t_s,
+        0 as segment,
+        coalesce(r.time_headway_s <= 2.0 and r.same_lane and r.dx_m < 0, false) as close,
+        r.time_headway_s
+    from relations as r
+    where instr($kinds_csv, ',' || r.actor_kind || ',') > 0
+)
+
+select *, close as holds from conditions
 '''
 
 
@@ -101,7 +105,7 @@ def test_an_enum_kpi_needs_a_declared_type(tmp_path):
 
 
 def test_sql_that_does_not_fit_the_scenario_is_refused_before_any_data_is_read(tmp_path):
-    no_segment = own_folder(tmp_path / "a", sql=OWN_SQL.replace("    0 as segment,\n", ""))
+    no_segment = own_folder(tmp_path / "a", sql=OWN_SQL.replace("        0 as segment,\n", ""))
     with pytest.raises(ScenarioError, match="close_follower.sql: does not return column 'segment'"):
         resolve_scenarios(["close_follower"], {}, no_segment)
     typo = own_folder(tmp_path / "b", sql=OWN_SQL.replace("$kinds_csv", "$kind_csv"))
@@ -119,7 +123,7 @@ def test_sql_that_does_not_fit_the_scenario_is_refused_before_any_data_is_read(t
 
 
 def test_lint_command_names_file_and_key_and_exits_2(tmp_path, capsys):
-    bad = own_folder(tmp_path / "a", sql=OWN_SQL.replace("    0 as segment,\n", ""))
+    bad = own_folder(tmp_path / "a", sql=OWN_SQL.replace("        0 as segment,\n", ""))
     assert main(["lint", "close_follower", "--scenario-path", str(bad)]) == 2
     err = capsys.readouterr().err
     assert f"{bad / 'close_follower.toml'} [[phases]] close_follower" in err and "'segment'" in err
@@ -142,14 +146,17 @@ def test_a_users_own_folder_runs_with_the_built_in_bases(tmp_path, capsys):
         load_scenario("close_follower")  # not without the folder
 
 
-def test_explain_names_a_condition_the_scenario_file_does_not_list(tmp_path):
-    """A phase query whose `holds` tests more than the conditions its [[phases]] entry lists: explain says so,
-    instead of blaming a chain that a one-phase scenario does not have."""
-    hidden = OWN_SQL.replace("false) as holds", "false) and r.dx_m < -100 as holds")
-    folder = own_folder(tmp_path, sql=hidden)
-    t = times(5.0)
-    db = make_db(tmp_path, [actor("ego", t, 100 + 10 * t, Y1, is_ego=True), actor("near", t, 85 + 10 * t, Y1)])
-    text = explain(db, "close_follower", "d1", "ego", scenario_path=folder).text()
-    assert "0 of 1 phases; close_follower could not begin" in text
-    assert "does not continue the chain" not in text
-    assert "tests a condition its [[phases]] `conditions` do not list" in text
+def test_holds_is_exactly_the_and_of_the_listed_conditions(tmp_path, capsys):
+    """A phase whose `holds` tests a condition its [[phases]] entry does not list (follower_vehicle's
+    actor_path_follows_ego once) could never be named by explain: lint and match refuse it, naming the condition;
+    so does a listed condition holds leaves out, and a holds that is not a plain AND of condition columns."""
+    hidden = OWN_SQL.replace("close as holds", "close and r_far as holds").replace(
+        "        r.time_headway_s\n", "        r.time_headway_s,\n        r.dx_m < -100 as r_far\n")
+    with pytest.raises(ScenarioError, match="holds ANDs 'r_far', which conditions does not list: add it there"):
+        resolve_scenarios(["close_follower"], {}, own_folder(tmp_path / "a", sql=hidden))
+    unused = OWN_TOML.replace('test = "<= 2 s" }]', 'test = "<= 2 s" }, { name = "segment", value = "t_s", test = "x" }]')
+    with pytest.raises(ScenarioError, match="conditions lists 'segment', which holds does not AND"):
+        resolve_scenarios(["close_follower"], {}, own_folder(tmp_path / "b", unused))
+    inline = OWN_SQL.replace("close as holds", "coalesce(close, false) as holds")
+    assert main(["lint", "--scenario-path", str(own_folder(tmp_path / "c", sql=inline))]) == 2
+    assert "holds must be the AND of the condition columns" in capsys.readouterr().err

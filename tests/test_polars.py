@@ -290,6 +290,7 @@ def test_the_lint_knows_which_files_have_a_polars_override(tmp_path):
     root = tmp_path / "queries"
     (root / "relations").mkdir(parents=True)
     (root / "relations/runs.sql").write_text(
+        "-- reads: t\n-- params: $min_frame\n"
         "select last_value(x ignore nulls) over (partition by a order by f rows between unbounded preceding and "
         "current row) as y from t where f > $min_frame")
     assert lint_tree(root) == [

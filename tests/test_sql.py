@@ -15,8 +15,25 @@ from logiq_sql.spec.scenario import list_scenarios
 from tests.helpers import Y1, actor, make_db, times
 
 
-def test_every_query_is_portable():
+def test_every_query_is_portable_and_its_header_says_what_it_reads_and_binds():
     assert lint_tree() == []
+
+
+def test_a_header_that_drifted_from_its_query_is_a_lint_problem(tmp_path):
+    root = tmp_path / "queries"
+    (root / "match").mkdir(parents=True)
+    query = ("-- reads: runs, egos (remark, with a comma)\n-- params: $phase_1_name .. $phase_3_name\n"
+             "with c as (select * from runs) select $phase_1_name, $phase_2_name, $phase_4_name, * from c join t using (k)")
+    (root / "match/q.sql").write_text(query)
+    assert lint_tree(root) == [
+        "queries/match/q.sql: '-- params:' lists phase_3_name, which the query does not use; drop it from the header",
+        "queries/match/q.sql: the query uses phase_4_name, which '-- params:' does not list; add it to the header",
+        "queries/match/q.sql: '-- reads:' lists egos, which the query does not use; drop it from the header",
+        "queries/match/q.sql: the query uses t, which '-- reads:' does not list; add it to the header"]
+    (root / "match/q.sql").write_text("select 1 as x")
+    assert lint_tree(root) == [
+        "queries/match/q.sql: no '-- reads:' header line (the tables it reads; 'none' when there is none)",
+        "queries/match/q.sql: no '-- params:' header line (the $parameters it binds; 'none' when there is none)"]
 
 
 def test_lint_catches_what_transpiling_lets_through():

@@ -9,6 +9,7 @@ construct and the portable alternative.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import polars as pl
@@ -89,6 +90,64 @@ def lint_sql(text: str, where: str, polars_override: bool = False, polars_refuse
     return problems
 
 
+_HEADER_LINE = re.compile(r"^-- (\w+): ?(.*)$")
+_HEADER_MORE = re.compile(r"^--\s{2,}(.*)$")
+# "$phase_1_name .. $phase_4_name": the four phase slots, written as a range
+_SLOT_RANGE = re.compile(r"(\$?)(\w*?)1(\w*) \.\.\s+\$?\2(\d)\3")
+
+
+def header(text: str) -> dict[str, str]:
+    """A query file's header fields (``-- reads: ...``, ``-- params: ...``; indented ``--`` lines continue one),
+    up to the first line that is not a comment."""
+    fields: dict[str, str] = {}
+    key = None
+    for line in text.splitlines():
+        if not line.startswith("--"):
+            break
+        more = _HEADER_MORE.match(line)
+        field = _HEADER_LINE.match(line)
+        if key and more:
+            fields[key] += " " + more.group(1)
+        elif field:
+            key = field.group(1)
+            fields[key] = field.group(2)
+        else:
+            key = None
+    return fields
+
+
+def _named(field: str, pattern: str) -> set[str]:
+    """The names a header field lists: parenthesised remarks dropped, slot ranges expanded."""
+    while True:
+        shorter = re.sub(r"\([^()]*\)", "", field)
+        if shorter == field:
+            break
+        field = shorter
+    field = _SLOT_RANGE.sub(lambda m: ", ".join(f"{m[1]}{m[2]}{i}{m[3]}" for i in range(1, int(m[4]) + 1)), field)
+    return set(re.findall(pattern, field))
+
+
+def header_findings(text: str, where: str) -> list[str]:
+    """A built-in query's ``-- reads:`` and ``-- params:`` headers against what its SQL reads and binds: a header
+    is what an analyst reads first, so it must not drift from the query."""
+    fields = header(text)
+    tree = sqlglot.parse_one(text, read="duckdb")
+    problems = [f"{where}: no '-- {key}:' header line ({what}; 'none' when there is none)"
+                for key, what in (("reads", "the tables it reads"), ("params", "the $parameters it binds"))
+                if key not in fields]
+    bound = {node.name for node in tree.find_all(exp.Placeholder)}
+    read = {t.name for t in tree.find_all(exp.Table)} - {c.alias for c in tree.find_all(exp.CTE)}
+    for key, found, pattern in (("params", bound, r"\$(\w+)"), ("reads", read, r"(?:^|,)\s*(\w+)\s*(?=,|$)")):
+        if key not in fields:
+            continue
+        listed = _named(fields[key], pattern) - {"none"}
+        problems += [f"{where}: '-- {key}:' lists {name}, which the query does not use; drop it from the header"
+                     for name in sorted(listed - found)]
+        problems += [f"{where}: the query uses {name}, which '-- {key}:' does not list; add it to the header"
+                     for name in sorted(found - listed)]
+    return problems
+
+
 def _guarded(div: exp.Div) -> bool:
     """True when the divisor cannot be 0 at run time: a non-zero literal, nullif(), or a CASE branch."""
     divisor = div.expression
@@ -144,8 +203,10 @@ def lint_tree(root: Path | None = None) -> list[str]:
     polars = root / OVERRIDES / "polars"
     for path in portable_files(root):
         relative = str(path.relative_to(root))
-        problems += lint_sql(path.read_text(), str(path.relative_to(root.parent)),
-                             polars_override=(polars / relative).is_file(), polars_refused=relative in POLARS_UNSUPPORTED)
+        where = str(path.relative_to(root.parent))
+        problems += lint_sql(path.read_text(), where, polars_override=(polars / relative).is_file(),
+                             polars_refused=relative in POLARS_UNSUPPORTED)
+        problems += header_findings(path.read_text(), where)
     for path in sorted(polars.rglob("*.sql")) if polars.is_dir() else []:
         where = str(path.relative_to(root.parent))
         twin = root / path.relative_to(polars)

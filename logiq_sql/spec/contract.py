@@ -92,6 +92,39 @@ def output_columns(relative: str, tables: tuple[tuple[str, frozenset[str] | None
     return _columns(parsed(relative), {}, dict(tables))
 
 
+def holds_terms(relative: str) -> list[str] | None:
+    """The condition columns a phase query's ``holds`` is the AND of, in order; None when ``holds`` is not one plain
+    AND of columns (or is defined more than once), so that no condition can hide in it unnamed."""
+    defined = [a for a in parsed(relative).find_all(exp.Alias) if a.alias == "holds"]
+    if len(defined) != 1:
+        return None
+    terms, todo = [], [defined[0].this]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, exp.Paren):
+            todo.append(node.this)
+        elif isinstance(node, exp.And):
+            todo += [node.right, node.left]
+        elif isinstance(node, exp.Column) and not node.table:
+            terms.append(node.name)
+        else:
+            return None
+    return terms
+
+
+def _holds(relative: str, declared: list[str], where: str) -> list[str]:
+    terms = holds_terms(relative)
+    if terms is None:
+        return [f"{where}: holds must be the AND of the condition columns, e.g. `select *, a and b as holds from "
+                f"conditions` (docs/scenarios.md), so that explain can name every condition that failed."]
+    extra = [t for t in terms if t not in declared]
+    missing = [c for c in declared if c not in terms]
+    return ([f"{where}: holds ANDs '{t}', which conditions does not list: add it there (explain names only the "
+             f"conditions listed)." for t in extra]
+            + [f"{where}: conditions lists '{c}', which holds does not AND: add it to holds or drop it from "
+               f"conditions." for c in missing])
+
+
 def _missing(have: frozenset[str] | None, wanted: list[str], where: str, what: str) -> list[str]:
     if have is None:
         return []
@@ -123,6 +156,7 @@ def check_scenario(s: Scenario, queries: list[str]) -> list[str]:
         problems += _missing(have, list(PHASE_COLUMNS), where, "the phase contract, docs/scenarios.md")
         problems += _missing(have, [c.name for c in phase.conditions], where, "a condition named in conditions")
         problems += _missing(have, [c.value for c in phase.conditions], where, "a value named in conditions")
+        problems += _holds(phase.query, [c.name for c in phase.conditions], where)
     produced: dict[str, list[str]] = {}
     for rel in s.kpi_queries:
         have = output_columns(rel)

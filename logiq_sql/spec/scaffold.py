@@ -45,23 +45,31 @@ conditions = [
 
 SQL = '''-- phase: {name} (written by `logiq-sql new-scenario`; the phase contract: docs/scenarios.md)
 -- One row per (drive, ego, actor, frame) of the relation table (its columns: docs/semantics.md): each condition
--- as a column named as in the TOML file, `holds` their conjunction, and the values the conditions read.
+-- as a column named as in the TOML file, the values the conditions read, and `holds`: exactly the AND of the
+-- condition columns (`logiq-sql lint` checks it against the TOML file, so `explain` can name each one).
+with
+
+conditions as (
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        r.frame,
+        r.t_s,
+        0 as segment,  -- nothing cuts the phase; e.g. the Ego's lane run would end it at a lane change
+        coalesce(instr($kinds_csv, ',' || r.actor_kind || ',') > 0, false) as actor_kind_ok,
+        coalesce(r.same_lane and r.dx_m < 0, false) as behind_in_lane,
+        coalesce(r.time_headway_s <= $max_time_headway_s, false) as close,
+        r.actor_kind,
+        r.dx_m,
+        r.time_headway_s
+    from relations as r
+)
+
 select
-    r.drive_id,
-    r.ego_id,
-    r.actor_id,
-    r.frame,
-    r.t_s,
-    0 as segment,  -- nothing cuts the phase; e.g. the Ego's lane run would end it at a lane change
-    coalesce(instr($kinds_csv, ',' || r.actor_kind || ',') > 0, false) as actor_kind_ok,
-    coalesce(r.same_lane and r.dx_m < 0, false) as behind_in_lane,
-    coalesce(r.time_headway_s <= $max_time_headway_s, false) as close,
-    coalesce(instr($kinds_csv, ',' || r.actor_kind || ',') > 0
-             and r.same_lane and r.dx_m < 0 and r.time_headway_s <= $max_time_headway_s, false) as holds,
-    r.actor_kind,
-    r.dx_m,
-    r.time_headway_s
-from relations as r
+    *,
+    actor_kind_ok and behind_in_lane and close as holds
+from conditions
 '''
 
 

@@ -1,7 +1,7 @@
 -- junctions: crossing_pairs
 -- grain: one row per (drive_id, ego_id, ego_passage, actor_id, actor_passage): an ego and a related actor
 --        near or in the same junction at the same time, whose paths through it may cross
--- reads: relations, junction_frames, egos
+-- reads: relations, junction_frames
 -- params: none
 select distinct
     r.drive_id,

@@ -44,30 +44,34 @@ checked as (
         on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
     left join lane_line as line
         on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
+),
+
+conditions as (
+    select
+        drive_id,
+        ego_id,
+        actor_id,
+        frame,
+        t_s,
+        lane_run as segment,
+        instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
+        lon_gap_m > 0 as actor_ahead,
+        adjacent_side is not null as actor_beside,
+        coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
+            and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
+        ego_keeps_lane,
+        actor_kind,
+        lon_gap_m,
+        adjacent_side,
+        time_headway_s,
+        ego_lane_now_id as ego_lane_id,
+        actor_lane_id,
+        entry_frame
+    from checked
 )
 
+-- holds is exactly the AND of the conditions above (logiq-sql lint checks it against the scenario file)
 select
-    drive_id,
-    ego_id,
-    actor_id,
-    frame,
-    t_s,
-    lane_run as segment,
-    instr($kinds_csv, ',' || actor_kind || ',') > 0 as actor_kind_ok,
-    lon_gap_m > 0 as actor_ahead,
-    adjacent_side is not null as actor_beside,
-    coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
-        and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
-    ego_keeps_lane,
-    instr($kinds_csv, ',' || actor_kind || ',') > 0 and lon_gap_m > 0 and adjacent_side is not null
-        and coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
-            and time_headway_s <= $max_distance_from_sut_in_time_units_s, false)
-        and ego_keeps_lane as holds,
-    actor_kind,
-    lon_gap_m,
-    adjacent_side,
-    time_headway_s,
-    ego_lane_now_id as ego_lane_id,
-    actor_lane_id,
-    entry_frame
-from checked
+    *,
+    actor_kind_ok and actor_ahead and actor_beside and headway_in_range and ego_keeps_lane as holds
+from conditions

@@ -10,22 +10,29 @@
 --   distance_in_range   the closest box-to-box distance is in [min_distance_from_cyclist, max_distance_from_cyclist]
 -- "The scenario should last at most max_phase_duration": the phase's max_duration (the scenario file); a longer
 -- episode is cut into consecutive matches (docs/semantics.md, "Durations").
+with
+
+conditions as (
+    select
+        r.drive_id,
+        r.ego_id,
+        r.actor_id,
+        r.frame,
+        r.t_s,
+        0 as segment,
+        coalesce(r.ego_speed_mps >= $sut_minimal_speed_mps, false) as ego_moving,
+        r.actor_kind = 'cyclist' as actor_is_cyclist,
+        r.box_distance_m >= $min_distance_from_cyclist_m
+            and r.box_distance_m <= $max_distance_from_cyclist_m as distance_in_range,
+        r.ego_speed_mps,
+        r.actor_kind,
+        r.box_distance_m
+    from relations as r
+    where r.actor_kind not in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
+)
+
+-- holds is exactly the AND of the conditions above (logiq-sql lint checks it against the scenario file)
 select
-    r.drive_id,
-    r.ego_id,
-    r.actor_id,
-    r.frame,
-    r.t_s,
-    0 as segment,
-    coalesce(r.ego_speed_mps >= $sut_minimal_speed_mps, false) as ego_moving,
-    r.actor_kind = 'cyclist' as actor_is_cyclist,
-    r.box_distance_m >= $min_distance_from_cyclist_m
-        and r.box_distance_m <= $max_distance_from_cyclist_m as distance_in_range,
-    coalesce(r.ego_speed_mps >= $sut_minimal_speed_mps, false) and r.actor_kind = 'cyclist'
-        and r.box_distance_m >= $min_distance_from_cyclist_m
-        and r.box_distance_m <= $max_distance_from_cyclist_m as holds,
-    r.ego_speed_mps,
-    r.actor_kind,
-    r.box_distance_m
-from relations as r
-where r.actor_kind not in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
+    *,
+    ego_moving and actor_is_cyclist and distance_in_range as holds
+from conditions

@@ -1,7 +1,7 @@
 -- relations: relations
 -- grain: one row per (drive_id, ego_id, actor_id, frame) for every actor of the run's relation kinds within
 --        relation_range of an ego
--- reads: egos, tracks, ego_lanes, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
+-- reads: tracks, ego_lanes, actor_lanes, track_lanes, drive_inputs, lane_neighbours, lane_line
 -- params: $relation_range_m, $object_relation_range_m, $min_closing_speed_mps, $relation_kinds_csv
 --
 -- Joined on the integer keys ingest assigns (schema.TRACK_KEYS), which each row carries beside the ids:

@@ -1,6 +1,7 @@
 -- replay: match_frames
 -- grain: one row per (match_id, frame) of the window where the ego has a track row
 -- reads: replay_windows, pair_tracks, pair_relations
+-- params: none
 --
 -- The ego's and the actor's boxes (actor columns NULL where it is not tracked), the actor's gap, time
 -- headway and TTC as the relation query defines them (lon_gap_m, time_headway_s, ttc_s; NULL where

@@ -1,6 +1,7 @@
 -- replay: pair_tracks
 -- grain: one row per (drive_id, actor_id, frame) of an ego or actor of a replayed match, inside its window
 -- reads: replay_windows, tracks
+-- params: none
 --
 -- The relation query (queries/relations/relations.sql) runs over these rows only, so the replay shows the
 -- gap, headway and TTC exactly as matching defines them.
