@@ -36,7 +36,7 @@ def _renamed(tmp_path: Path, name: str = "renamed") -> Path:
 def _tables(db: Path, drive: str) -> dict[str, pl.DataFrame]:
     with duckdb.connect(str(db), read_only=True) as con:
         return {
-            "tracks": con.sql(f"select * exclude (drive_id) from tracks where drive_id = '{drive}' "
+            "tracks": con.sql(f"select * exclude (drive_id, drive_key) from tracks where drive_id = '{drive}' "
                               "order by actor_id, frame").pl(),
             "lanes": con.sql("select * exclude (map_id) from lanes order by lane_id").pl(),
             "states": con.sql(f"select light_id, frame, state from traffic_light_states where drive_id = '{drive}' "

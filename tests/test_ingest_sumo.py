@@ -451,8 +451,14 @@ def test_regime_options_are_checked():
 
     with pytest.raises(LogiqError, match="--approach-lanes 5: choose one of 2, 3, 4"):
         Regime(approach_lanes=5)
-    with pytest.raises(LogiqError, match="--truck-share 0.6 and --bus-share 0.5"):
+    with pytest.raises(LogiqError, match="--truck-share 0.6, --bus-share 0.5 and --motorcycle-share 0: give shares"):
         Regime(truck_share=0.6, bus_share=0.5)
+    with pytest.raises(LogiqError, match="--skew 50: give degrees in"):
+        Regime(skew_deg=50)
+    with pytest.raises(LogiqError, match="--cycle 20: give a signal cycle"):
+        Regime(cycle_s=20)
+    with pytest.raises(LogiqError, match="--speed 100: give the junction's speed limit"):
+        Regime(speed_kmh=100)
     with pytest.raises(LogiqError, match="--lane-change-duration -1"):
         Regime(lane_change_duration_s=-1)
 
@@ -529,3 +535,17 @@ def test_noise_without_a_perceived_copy_is_refused(capsys):
     assert main(["simulate", "motorway", "--out", "never_written", "--noise-drop", "0.02"]) == 2
     assert "add --perceived DIR" in capsys.readouterr().err
     assert not Path("never_written").exists()
+
+
+def test_a_runs_command_line_parses_back_into_its_regime():
+    """cmd.txt spells the regime as `logiq-sql eval simulate` options: each must exist and give the same regime."""
+    import shlex
+
+    from logiq_sql.cli import build_parser
+    from logiq_sql.evaluation.simulate import Regime, command_options
+
+    regime = Regime(motorcycle_share=0.1, skew_deg=15, cycle_s=60, speed_kmh=40, exit_backup=True, approach_lanes=2)
+    args = build_parser().parse_args(["eval", "simulate", *shlex.split(command_options("junction", 5, 7, regime)),
+                                      "--out", "run"])
+    assert (args.motorcycle_share, args.skew, args.cycle, args.speed, args.exit_backup, args.approach_lanes) == (
+        0.1, 15, 60, 40, True, 2)

@@ -74,7 +74,7 @@ def test_quickstart(tmp_path, executed):
     nb = execute("quickstart.ipynb", tmp_path, executed)
     printed = "".join(outputs(nb, "stream"))
     assert "3 drive(s) ingested, 0 rejected" in printed and "4 drive(s) ingested, 0 rejected" in printed
-    assert "unprotected_left_turn_with_yield_and_traffic_light: 17 matches in 1 drive(s)" in printed
+    assert "unprotected_left_turn_with_yield_and_traffic_light: 10 matches in 1 drive(s)" in printed
     assert "sut_cut_out:" in printed
     assert len(outputs(nb, "image/png")) == 2  # the cut-out timeline and the follower coverage
     assert len(replays(nb)) == 1  # a cut-out

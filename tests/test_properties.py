@@ -224,9 +224,10 @@ def test_cyclist_phase_cuts_episodes_into_pieces_of_at_most_the_maximum(frames, 
     present = [(f, x) for f, x in enumerate(frames) if x is not None]
     relations = pl.DataFrame(
         [{"drive_id": "d", "ego_id": "e", "actor_id": "c", "frame": f, "t_s": f * dt, "actor_kind": kind,
-          "box_distance_m": dist} for f, (kind, dist, _) in present],
+          "box_distance_m": dist, "ego_speed_mps": v} for f, (kind, dist, v) in present],
         schema={"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
-                "t_s": pl.Float64, "actor_kind": pl.String, "box_distance_m": pl.Float64})
+                "t_s": pl.Float64, "actor_kind": pl.String, "box_distance_m": pl.Float64,
+                "ego_speed_mps": pl.Float64})  # relations carry the ego's speed (the lean relation)
     tracks = pl.DataFrame([{"drive_id": "d", "actor_id": "e", "frame": f, "t_s": f * dt, "speed_mps": v}
                            for f, (_, _, v) in present],
                           schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64,

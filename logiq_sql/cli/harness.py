@@ -17,7 +17,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     regime = Regime(lane_change_duration_s=args.lane_change_duration, truck_share=args.truck_share,
                     bus_share=args.bus_share, approach_lanes=args.approach_lanes, demand=args.demand,
-                    creep=args.creep)
+                    creep=args.creep, motorcycle_share=args.motorcycle_share, skew_deg=args.skew,
+                    cycle_s=args.cycle, speed_kmh=args.speed, exit_backup=args.exit_backup)
     noise = Noise(position_m=args.noise_position, heading_deg=args.noise_heading, speed_mps=args.noise_speed,
                   drop_share=args.noise_drop, seed=args.seed if args.noise_seed is None else args.noise_seed)
     if noise != Noise(seed=noise.seed) and not args.perceived:
@@ -89,6 +90,16 @@ def add_harness(harness, hidden: bool = False) -> None:
                    help="junction: lanes per approach, i.e. its size (default 3)")
     g.add_argument("--no-creep", dest="creep", action="store_false",
                    help="junction: left-turners start from the line like other cars (default: they creep)")
+    g.add_argument("--motorcycle-share", type=float, default=0.0, metavar="X",
+                   help="junction: share of motor vehicles that are motorcycles (default 0)")
+    g.add_argument("--skew", type=float, default=0.0, metavar="DEG",
+                   help="junction: north and south arms turned this far off the perpendicular, 0-45 (default 0)")
+    g.add_argument("--cycle", type=float, default=90.0, metavar="S",
+                   help="junction: the signal cycle in seconds, 30-180 (default 90)")
+    g.add_argument("--speed", type=float, default=50.0, metavar="KMH",
+                   help="junction: the arms' speed limit in km/h, 20-80 (default 50)")
+    g.add_argument("--exit-backup", action="store_true",
+                   help="junction: exits narrow to one slow lane 50 m on, so they back up into the junction")
     g = s.add_argument_group("perception-like noise, written to a perceived copy of the run (docs/evaluation.md)")
     g.add_argument("--perceived", metavar="DIR",
                    help="also write DIR/<run folder name>: the run with noisy tracks, for ingest; label the original")
