@@ -48,7 +48,7 @@ demo: venv
 	$(BIN)/logiq-sql match --db demo/sumo.duckdb --scenario unprotected_left_turn_with_yield_and_traffic_light --ego every:3 --quiet
 	@$(BIN)/logiq-sql query --db demo/sumo.duckdb --limit 6 "select m.ego_id, m.actor_id, round(m.start_s, 1) as start_s, \
 	  string_agg(round(p.end_s - p.start_s + 0.1, 1)::varchar, ' + ' order by p.phase_index) as phase_seconds, \
-	  k.traversal_relative_direction as traversal, k.pet_between_sut_and_npc_s as pet_s \
+	  k.traversal_relative_direction as traversal, round(k.pet_between_sut_and_npc_s, 2) as pet_s \
 	  from matches m join match_phases p using (match_id) join kpis k using (match_id) group by all \
 	  order by start_s limit 6"
 	$(BIN)/logiq-sql report --db $(DEMO_DB) --out demo/report.html
