@@ -154,10 +154,7 @@ class Explanation:
                 lines += [f"    {f}" for f in r["failed"]] or [
                     "    all its conditions hold at this frame, but only in a run dropped as jitter (below)"
                     if r["in_jitter"] else
-                    "    all its conditions hold at this frame, but the run it holds in does not continue the chain"
-                    if r["phases_reached"] > 0 else
-                    "    every condition the scenario file lists holds at this frame, but the phase query's `holds` "
-                    "does not: it tests a condition its [[phases]] `conditions` do not list (list it)"]
+                    "    all its conditions hold at this frame, but the run it holds in does not continue the chain"]
             lines += [f"    bridged: {b}" for b in r["bridged"]]
         lines.append("parameters: " + ", ".join(f"{k} = {v}" for k, v in sorted(self.parameters.items())))
         return "\n".join(lines)

@@ -216,7 +216,7 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date
         if cache is not None:
-            kept = step_cache.size(con)  # its bytes only once the run is published: `logiq-sql cache` says them
+            kept = step_cache.size(con, storage=False)  # bytes count once published: `logiq-sql cache` says them
             result.cache = f"{cache.summary()}; {kept['rows']:,} rows kept in {kept['tables']} table(s)"
             result.cache_steps = cache.steps
         if out is not None:

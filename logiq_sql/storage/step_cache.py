@@ -108,12 +108,13 @@ def _drop_unreferenced(con: duckdb.DuckDBPyConnection, stored: str) -> None:
             con.execute(f"drop table {stored}.{table}")
 
 
-def size(con: duckdb.DuckDBPyConnection) -> dict[str, int]:
-    """The cache's tables, rows, index entries and bytes (DuckDB's blocks of those tables)."""
+def size(con: duckdb.DuckDBPyConnection, storage: bool = True) -> dict[str, int]:
+    """The cache's tables, rows, index entries and bytes (DuckDB's blocks of those tables; 0 without ``storage``,
+    which reads every column's segments)."""
     tables = cache_tables(con)
     rows = sum(con.execute(f"select count(*) from {stored_schema(con)}.{t}").fetchall()[0][0] for t in tables)
     blocks: set[int] = set()  # small tables share blocks
-    for t in tables:
+    for t in tables if storage else ():
         blocks |= {r[0] for r in con.execute(f"select distinct block_id from pragma_storage_info('{t}') "
                                              "where block_id is not null").fetchall()}
     (block_size,) = con.execute("select block_size from pragma_database_size()").fetchall()[0]
