@@ -8,7 +8,7 @@ import sqlglot
 
 from logiq_sql.cli.lint import lint_sql, lint_tree
 from logiq_sql.core.paths import data_dir
-from logiq_sql.core.sql import bind, placeholders
+from logiq_sql.core.sql import bind, header, placeholders, query_text
 from logiq_sql.matching.match import match, render
 from logiq_sql.spec.plan import parse_ego, run_values, scenario_queries
 from logiq_sql.spec.scenario import list_scenarios
@@ -34,6 +34,19 @@ def test_a_header_that_drifted_from_its_query_is_a_lint_problem(tmp_path):
     assert lint_tree(root) == [
         "queries/match/q.sql: no '-- reads:' header line (the tables it reads; 'none' when there is none)",
         "queries/match/q.sql: no '-- params:' header line (the $parameters it binds; 'none' when there is none)"]
+
+
+def test_a_query_header_is_read_once_for_its_fields_and_its_column_docs():
+    text = ("-- grain: one row per (drive_id, frame) for every actor\n--        within range\n-- reads: tracks\n--\n"
+            "--   dx_m, dy_m   actor centre\n--                in the ego frame\n--   holds  true\n--\n"
+            "-- params: none\nselect 1\n-- grain: not the header")
+    found = header(text)
+    assert found.fields == {"grain": "one row per (drive_id, frame) for every actor within range", "reads": "tracks",
+                            "params": "none"}
+    assert found.columns == {"dx_m": "actor centre in the ego frame", "dy_m": "actor centre in the ego frame",
+                             "holds": "true"}
+    # a grain written over two lines is whole in the kept relations table's comment
+    assert header(query_text("relations/relations.sql")).fields["grain"].endswith("within relation_range of an ego")
 
 
 def test_lint_catches_what_transpiling_lets_through():
