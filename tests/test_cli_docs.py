@@ -9,13 +9,18 @@ import pytest
 
 from logiq_sql.cli import main
 from logiq_sql.storage.db import connect
-from logiq_sql.storage.docs import docs_markdown
+from logiq_sql.storage.docs import docs_markdown, with_formats
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_tables_doc_is_current():
     assert (ROOT / "docs/tables.md").read_text() == docs_markdown() + "\n", "run `make docs`"
+
+
+def test_formats_doc_is_the_reader_registry():
+    page = (ROOT / "docs/formats.md").read_text()
+    assert page == with_formats(page), "run `make docs`: docs/formats.md's table of formats is not the registry's"
 
 
 def test_every_column_has_a_comment(tmp_path):
