@@ -236,9 +236,9 @@ class StepCache:
             if not write and self._entries(step, key) == len(owners) * len(self._batch):
                 return  # each owner's entry already names this key for every drive of the batch
             self._point_entries(step, key, table, data, write)
-        if write:
-            self._write_s += time.process_time() - started
-            self._cells += cells
+            if write:
+                self._write_s += time.process_time() - started
+                self._cells += cells
 
     def _point_entries(self, step: str, key: str, table: str, data: str, write: bool) -> None:
         """In one transaction: the batch's rows of ``table`` written to ``data`` (``write``), the entries of the
