@@ -220,7 +220,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     """Every query file, transpiled to Spark with its parameters bound, put through Spark's analyser over empty
     canonical tables: in each scenario's step order (a step's view is what the next steps read), then the
     staging and coverage queries. Catches what sqlglot passes through but Spark cannot run. Needs a Spark
-    session (tests/test_spark.py)."""
+    session (tests/engines/test_spark.py)."""
     from pyspark.sql import types as T
 
     from logiq_sql.core.schema import spark_type
@@ -252,7 +252,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
         seen.add(rel)
         problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
     root = root or data_dir("queries")
-    for path in portable_files(root):  # overrides run on their engine only (tests/test_polars.py)
+    for path in portable_files(root):  # overrides run on their engine only (tests/engines/test_polars.py)
         rel = str(path.relative_to(root))
         if rel not in seen:
             problems.append(f"queries/{rel}: no scenario step runs it, so it was not checked on Spark")

@@ -147,7 +147,7 @@ def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
 # Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:
 # dict-surviving cache: global dictionary column 0 changed identity after being seeded for dictionary caching" (its
 # dictionary-aware caching operator, added by duckdb/duckdb#23447) on the bundled SUMO junction; on one thread it gives the rows. Remove an entry
-# when a DuckDB release no longer fails (tests/test_relations_of.py and the golden test run that drive).
+# when a DuckDB release no longer fails (tests/matching/test_relations_of.py and the golden test run that drive).
 SINGLE_THREADED = ("relations/ego_lanes.sql",)
 
 
