@@ -71,7 +71,7 @@ golden: venv
 	$(BIN)/python -m benchmarks.tiers --tier S --no-baseline --write-golden
 
 docs: venv
-	$(BIN)/python -c "from logiq_sql.storage.docs import docs_markdown; print(docs_markdown())" > docs/tables.md
+	$(BIN)/python -m logiq_sql.storage.docs
 
 clean:
 	rm -rf $(VENV) demo build dist .pytest_cache

@@ -205,7 +205,7 @@ def cyclist_close_to_moving_sut(t: dict[str, pd.DataFrame], p: dict[str, object]
 
 BASELINES = {"follower_vehicle": follower_vehicle, "cyclist_close_to_moving_sut": cyclist_close_to_moving_sut}
 # the meaning the baseline implements: a phase ends at every missing frame (no gap bridging, so no jitter rule):
-# the SQL matcher is compared with it under these values (benchmarks/tiers.py, tests/test_baseline.py)
+# the SQL matcher is compared with it under these values (benchmarks/tiers.py, tests/whole/test_baseline.py)
 SAME_MEANING = {"max_gap": "0s"}
 
 

@@ -2,7 +2,7 @@
 started from PySpark's own ``bin/spark-class`` (org.apache.spark.deploy.master.Master and worker.Worker), bound to
 127.0.0.1 on free ports, and a session on it with the project shipped to the executors as a wheel.
 
-Used by the cluster test (tests/test_spark_cluster.py) and the scale benchmark (benchmarks/spark_cluster.py).
+Used by the cluster test (tests/engines/test_spark_cluster.py) and the scale benchmark (benchmarks/spark_cluster.py).
 
 The project ships as a user ships it: ``pip wheel . --no-deps`` builds the wheel, and the session adds it as a
 ``.zip`` Python file (``addPyFile``; Spark puts only .zip/.egg/.jar on the executors' Python path, and a

@@ -1,5 +1,5 @@
 """The shapely lane look-up ingest used until issue 33 (GEOS's STRtree query, prepared contains, distance,
-line_locate_point), kept as it was: the oracle of ``tests/test_localise.py`` and the old side of
+line_locate_point), kept as it was: the oracle of ``tests/ingestion/test_localise.py`` and the old side of
 ``benchmarks/lane_lookup.py``."""
 
 from __future__ import annotations

@@ -84,8 +84,8 @@ def ingested(tmp_path_factory) -> Ingested:
 
 @pytest.fixture(scope="session")
 def matched_drives(tmp_path_factory) -> Path:
-    """The drives docs/queries.md describes, ingested and matched once per session (tests.test_analysts.
+    """The drives docs/queries.md describes, ingested and matched once per session (tests.outputs.test_analysts.
     build_matched_db); test_analysts and test_replay each read their own copy."""
-    from tests.test_analysts import build_matched_db
+    from tests.outputs.test_analysts import build_matched_db
 
     return build_matched_db(tmp_path_factory.mktemp("matched_drives") / "drives.duckdb")

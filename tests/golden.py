@@ -1,5 +1,5 @@
 """Golden outputs: what the pipeline gives on the bundled drives, kept in tests/golden/ so that an optimisation
-that changes a result fails a test (tests/test_golden.py) and the benchmark can say so too.
+that changes a result fails a test (tests/whole/test_golden.py) and the benchmark can say so too.
 
     python -m tests.golden --write     # regenerate tests/golden/*.parquet from the code as it is now
     python -m tests.golden             # compare the code as it is now with the stored files

@@ -1,5 +1,5 @@
 """logiq_sql's own imports, read from the source with ast (no module is imported): for the tests of the house
-rules (tests/test_architecture.py) and of what the labeller may import (tests/test_labels.py)."""
+rules (tests/whole/test_architecture.py) and of what the labeller may import (tests/evaluation/test_labels.py)."""
 
 from __future__ import annotations
 

@@ -17,7 +17,12 @@ from logiq_sql.cli.common import (
     EXIT_OK,
     EXIT_REJECTED,
     add_db,
+    add_ego_kinds,
+    add_quiet,
+    add_relation_range,
+    add_scenario_path,
     add_set,
+    add_wait,
     command,
     db_of,
     set_pairs,
@@ -25,8 +30,6 @@ from logiq_sql.cli.common import (
 from logiq_sql.cli.harness import add_eval
 from logiq_sql.core.errors import DiskFullError, FileBusyError, LogiqError
 from logiq_sql.core.formats import FORMATS, formats_help
-from logiq_sql.core.schema import EGO_KINDS
-from logiq_sql.spec.plan import DEFAULT_RELATION_RANGE
 
 # how the CLI spells the Python arguments that library errors name (logiq_sql.core.errors.arg)
 FLAGS = {"overrides": "--set", "drives": "--drive", "db_path": "--db", "name": "NAME", "wait_s": "--wait"}
@@ -263,38 +266,6 @@ def cmd_export_openlabel(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-# --- options shared by several commands ------------------------------------------------------------------------------
-
-def _add_wait(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
-                   help="when another run is writing the file, wait up to this long for it (a progress line every "
-                        "10 s) instead of stopping at once with exit code 4 (default 0)")
-
-
-def _add_quiet(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
-
-
-def _add_relation_range(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH",
-                   help="keep ego-actor pairs whose centres are at most this far apart "
-                        f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
-
-
-def _add_scenario_path(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario-path", metavar="DIR",
-                   help="a folder of your own scenario files (and their SQL), besides the built-in ones; they may "
-                        "extend the built-in bases (docs/scenarios.md)")
-
-
-def _add_ego_kinds(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--ego-kinds", metavar="KINDS",
-                   help="the kinds that can be the SUT for --ego auto, all and every:N, comma-separated (default "
-                        f"{','.join(EGO_KINDS)}; car means vehicle)")
-
-
-# --- one function per command -----------------------------------------------------------------------------------------
-
 def add_ingest(sub) -> None:
     p = command(sub, "ingest", cmd_ingest, "read drives into a DuckDB file",
                  "Read drives (files or folders of them) into the canonical tables of a DuckDB file. Re-ingesting a "
@@ -305,8 +276,8 @@ def add_ingest(sub) -> None:
     p.add_argument("--dataset", metavar="DIR", help="instead of --db: write the canonical tables as Parquet "
                    "partitioned by drive into DIR, file by file, so many machines can ingest into one DIR "
                    "(docs/engines.md)")
-    _add_quiet(p)
-    _add_wait(p)
+    add_quiet(p)
+    add_wait(p)
 
 
 def add_match(sub) -> None:
@@ -319,11 +290,11 @@ def add_match(sub) -> None:
     p.add_argument("--ego", default="auto", metavar="auto|recorded|all|every:N|IDS",
                    help="who is the SUT: auto (recorded ego, else every actor of an ego kind: car, truck, bus, ...; "
                         "default), recorded, all (every actor of an ego kind), every:N, or actor ids, comma-separated")
-    _add_ego_kinds(p)
-    _add_scenario_path(p)
+    add_ego_kinds(p)
+    add_scenario_path(p)
     add_set(p)
     p.add_argument("--drive", action="append", metavar="ID", help="only these drives (repeatable)")
-    _add_relation_range(p)
+    add_relation_range(p)
     p.add_argument("--out", metavar="DIR", help="also write the output tables as Parquet into DIR")
     p.add_argument("--keep", action="store_true",
                    help="also store the intermediate tables relations, passages and encroachments for analysts "
@@ -334,7 +305,13 @@ def add_match(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="rerun drives already matched with the same scenario version, parameters, ego and range "
                         "(skipped by default)")
-    _add_quiet(p)
+    add_quiet(p)
+    add_match_engine(p)
+    add_wait(p)
+
+
+def add_match_engine(p: argparse.ArgumentParser) -> None:
+    """What runs the queries of match, and where Spark reads the tables."""
     p.add_argument("--engine", choices=["duckdb", "spark", "polars"], default="duckdb",
                    help="what runs the queries: duckdb (default), spark (pip install 'logiq-sql[spark]', Java 17) "
                         "or polars (Polars SQL, with its overrides: docs/engines.md). Results land "
@@ -344,7 +321,6 @@ def add_match(sub) -> None:
     p.add_argument("--spark-tables", metavar="DIR",
                    help="where --engine spark writes the canonical tables as Parquet (partitioned by drive_id) for "
                         "Spark to read; on a cluster, a folder every executor can read (default: a temporary folder)")
-    _add_wait(p)
 
 
 def add_scenarios(sub) -> None:
@@ -353,7 +329,7 @@ def add_scenarios(sub) -> None:
     p.add_argument("--format", choices=["table", "json"], default="table",
                    help="table (default) or json: a list of scenarios, each with its parameters (name, type, "
                         "default, description, declared_in), phases, KPIs and coverage items")
-    _add_scenario_path(p)
+    add_scenario_path(p)
 
 
 def add_lint(sub) -> None:
@@ -362,7 +338,7 @@ def add_lint(sub) -> None:
                  "file uses, the columns each phase, KPI and sample query returns against what the scenario "
                  "declares, and the SQL's portability. Problems name the file and key; exit 2 when there is any.")
     p.add_argument("scenario", nargs="*", metavar="SCENARIO", help="scenarios to check (default: all)")
-    _add_scenario_path(p)
+    add_scenario_path(p)
 
 
 def add_new_scenario(sub) -> None:
@@ -387,9 +363,9 @@ def add_render(sub) -> None:
     p.add_argument("scenario", metavar="SCENARIO")
     add_set(p)
     p.add_argument("--ego", default="auto", help="as for match")
-    _add_ego_kinds(p)
-    _add_scenario_path(p)
-    _add_relation_range(p)
+    add_ego_kinds(p)
+    add_scenario_path(p)
+    add_relation_range(p)
     p.add_argument("--engine", choices=["duckdb", "spark"], default="duckdb",
                    help="duckdb (default): SET VARIABLE lines and the statement; spark: the Spark SQL statement with "
                         "the values to bind (spark.sql(text, args=...)) listed as comments above it")
@@ -407,10 +383,10 @@ def add_explain(sub) -> None:
     p.add_argument("--drive", required=True, metavar="ID")
     p.add_argument("--ego", required=True, metavar="IDS", help="the ego's actor id(s), comma-separated, or recorded")
     p.add_argument("--actor", metavar="ID", help="only this actor")
-    _add_ego_kinds(p)
-    _add_scenario_path(p)
+    add_ego_kinds(p)
+    add_scenario_path(p)
     add_set(p)
-    _add_relation_range(p)
+    add_relation_range(p)
 
 
 def add_query(sub) -> None:

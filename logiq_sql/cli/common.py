@@ -1,5 +1,5 @@
-"""What every command of ``logiq-sql`` shares, product and harness alike: exit codes, the epilog, --db and
---set, and how a command's parser is made."""
+"""What every command of ``logiq-sql`` shares, product and harness alike: exit codes, the epilog, the options
+several commands take (--db, --set, --wait, ...), and how a command's parser is made."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import argparse
 import os
 
 from logiq_sql.core.errors import LogiqError
+from logiq_sql.core.schema import EGO_KINDS
+from logiq_sql.spec.plan import DEFAULT_RELATION_RANGE
 
 # exit codes a scheduler can act on
 EXIT_OK = 0  # done (also when the reader of the output closed the pipe early, as `| head` does)
@@ -45,6 +47,34 @@ def add_db(p: argparse.ArgumentParser, what: str = "DuckDB file written by inges
 def add_set(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override a parameter, with its unit (e.g. max_distance_from_cyclist=4m)")
+
+
+def add_wait(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--wait", type=float, default=0.0, metavar="SECONDS",
+                   help="when another run is writing the file, wait up to this long for it (a progress line every "
+                        "10 s) instead of stopping at once with exit code 4 (default 0)")
+
+
+def add_quiet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true", help="no progress lines (the summary and exit code stay)")
+
+
+def add_relation_range(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--relation-range", default=DEFAULT_RELATION_RANGE, metavar="LENGTH",
+                   help="keep ego-actor pairs whose centres are at most this far apart "
+                        f"(default {DEFAULT_RELATION_RANGE}: a 5 s headway at 140 km/h)")
+
+
+def add_scenario_path(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario-path", metavar="DIR",
+                   help="a folder of your own scenario files (and their SQL), besides the built-in ones; they may "
+                        "extend the built-in bases (docs/scenarios.md)")
+
+
+def add_ego_kinds(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ego-kinds", metavar="KINDS",
+                   help="the kinds that can be the SUT for --ego auto, all and every:N, comma-separated (default "
+                        f"{','.join(EGO_KINDS)}; car means vehicle)")
 
 
 def command(sub, name: str, func, help: str, description: str | None = None,

@@ -67,6 +67,12 @@ def add_eval(sub) -> None:
 
 
 def add_harness(harness, hidden: bool = False) -> None:
+    """The harness's commands on ``harness``; ``hidden``: left out of its command list (the old top-level names)."""
+    for add in (add_simulate, add_label, add_evaluate):
+        add(harness, hidden)
+
+
+def add_simulate(harness, hidden: bool) -> None:
     s = command(harness, "simulate", cmd_simulate, "simulate drives with Eclipse SUMO (optional extra [sumo])",
                  "Build a motorway or a signalised junction with SUMO's own tools and run it at 0.1 s steps; writes "
                  "the network, routes, FCD and SUMO's reference outputs into DIR, ready for `ingest sumo DIR` "
@@ -78,6 +84,11 @@ def add_harness(harness, hidden: bool = False) -> None:
                                                               "are warm-up)")
     s.add_argument("--seed", type=int, default=1, help="random seed (default 1); the same seed gives the same run")
     s.add_argument("--out", required=True, metavar="DIR", help="folder to write the run into")
+    add_regime(s)
+    add_noise(s)
+
+
+def add_regime(s: argparse.ArgumentParser) -> None:
     g = s.add_argument_group("regime (docs/sumo.md, Regimes)")
     g.add_argument("--lane-change-duration", type=float, default=3.0, metavar="S",
                    help="seconds a lane change takes (SUMO --lanechange.duration; default 3; 0 = instantaneous)")
@@ -100,6 +111,9 @@ def add_harness(harness, hidden: bool = False) -> None:
                    help="junction: the arms' speed limit in km/h, 20-80 (default 50)")
     g.add_argument("--exit-backup", action="store_true",
                    help="junction: exits narrow to one slow lane 50 m on, so they back up into the junction")
+
+
+def add_noise(s: argparse.ArgumentParser) -> None:
     g = s.add_argument_group("perception-like noise, written to a perceived copy of the run (docs/evaluation.md)")
     g.add_argument("--perceived", metavar="DIR",
                    help="also write DIR/<run folder name>: the run with noisy tracks, for ingest; label the original")
@@ -113,6 +127,8 @@ def add_harness(harness, hidden: bool = False) -> None:
                    help="share of detections dropped at random (default 0; 0.02 = 2 %%)")
     g.add_argument("--noise-seed", type=int, metavar="N", help="seed of the noise (default: --seed)")
 
+
+def add_label(harness, hidden: bool) -> None:
     la = command(harness, "label", cmd_label, "ground-truth labels from a simulator's own records (for evaluate)",
                   "Label scenarios in SUMO run folders from SUMO's own records (FCD leader, lane-change output, "
                   "lanes and lane positions, vType boxes, the network's connections, signal states), independently "
@@ -126,6 +142,8 @@ def add_harness(harness, hidden: bool = False) -> None:
                          "docs/evaluation.md)")
     add_set(la)
 
+
+def add_evaluate(harness, hidden: bool) -> None:
     ev = command(harness, "evaluate", cmd_evaluate, "score the matches of a DuckDB file against ground-truth labels",
                   "Per scenario: event-level precision, recall and F1 (one-to-one pairs at temporal IoU >= --iou) "
                   "and timestamp balanced accuracy over every frame of the egos the matcher used. Definitions: "

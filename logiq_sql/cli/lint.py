@@ -18,6 +18,7 @@ from sqlglot import exp
 from sqlglot.errors import ErrorLevel
 
 from logiq_sql.core.paths import data_dir
+from logiq_sql.core.sql import header
 from logiq_sql.engines.polars_engine import OVERRIDES, POLARS_UNSUPPORTED, digests_after, override
 
 # function names (as sqlglot spells the node class) that do not carry over to Spark
@@ -90,30 +91,8 @@ def lint_sql(text: str, where: str, polars_override: bool = False, polars_refuse
     return problems
 
 
-_HEADER_LINE = re.compile(r"^-- (\w+): ?(.*)$")
-_HEADER_MORE = re.compile(r"^--\s{2,}(.*)$")
 # "$phase_1_name .. $phase_4_name": the four phase slots, written as a range
 _SLOT_RANGE = re.compile(r"(\$?)(\w*?)1(\w*) \.\.\s+\$?\2(\d)\3")
-
-
-def header(text: str) -> dict[str, str]:
-    """A query file's header fields (``-- reads: ...``, ``-- params: ...``; indented ``--`` lines continue one),
-    up to the first line that is not a comment."""
-    fields: dict[str, str] = {}
-    key = None
-    for line in text.splitlines():
-        if not line.startswith("--"):
-            break
-        more = _HEADER_MORE.match(line)
-        field = _HEADER_LINE.match(line)
-        if key and more:
-            fields[key] += " " + more.group(1)
-        elif field:
-            key = field.group(1)
-            fields[key] = field.group(2)
-        else:
-            key = None
-    return fields
 
 
 def _named(field: str, pattern: str) -> set[str]:
@@ -130,7 +109,7 @@ def _named(field: str, pattern: str) -> set[str]:
 def header_findings(text: str, where: str) -> list[str]:
     """A built-in query's ``-- reads:`` and ``-- params:`` headers against what its SQL reads and binds: a header
     is what an analyst reads first, so it must not drift from the query."""
-    fields = header(text)
+    fields = header(text).fields
     tree = sqlglot.parse_one(text, read="duckdb")
     problems = [f"{where}: no '-- {key}:' header line ({what}; 'none' when there is none)"
                 for key, what in (("reads", "the tables it reads"), ("params", "the $parameters it binds"))
@@ -241,7 +220,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     """Every query file, transpiled to Spark with its parameters bound, put through Spark's analyser over empty
     canonical tables: in each scenario's step order (a step's view is what the next steps read), then the
     staging and coverage queries. Catches what sqlglot passes through but Spark cannot run. Needs a Spark
-    session (tests/test_spark.py)."""
+    session (tests/engines/test_spark.py)."""
     from pyspark.sql import types as T
 
     from logiq_sql.core.schema import spark_type
@@ -273,7 +252,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
         seen.add(rel)
         problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
     root = root or data_dir("queries")
-    for path in portable_files(root):  # overrides run on their engine only (tests/test_polars.py)
+    for path in portable_files(root):  # overrides run on their engine only (tests/engines/test_polars.py)
         rel = str(path.relative_to(root))
         if rel not in seen:
             problems.append(f"queries/{rel}: no scenario step runs it, so it was not checked on Spark")

@@ -6,6 +6,7 @@ import contextlib
 import functools
 import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import duckdb
 import sqlglot
@@ -16,6 +17,8 @@ from logiq_sql.core.errors import ScenarioError
 from logiq_sql.core.paths import query_path
 
 _UNIT_CONSTANT = re.compile(r"^([a-z0-9]+)_per_([a-z0-9]+)$")
+_HEADER_FIELD = re.compile(r" (\w+): ?(.*)")  # after the "--"
+_HEADER_COLUMN = re.compile(r"(\s{2,})([a-z_][a-z0-9_]*(?:,\s*[a-z_][a-z0-9_]*)*)(\s{2,})(\S.*)")
 
 
 def shown_path(relative: str) -> str:
@@ -29,6 +32,45 @@ def query_text(relative: str) -> str:
     if not path.is_file():
         raise ScenarioError(f"query file {shown_path(relative)} not found.")
     return path.read_text()
+
+
+@dataclass(frozen=True)
+class Header:
+    """A query file's header: its comment lines up to the first line that is not one.
+
+    ``fields``: the ``-- name: value`` lines (reads, params, grain, ...), a value continuing on the lines right
+    below it indented by two spaces or more. ``columns``: the ``--   name[, name]   description`` lines, a
+    description continuing on the lines below it indented as deep."""
+
+    fields: dict[str, str]
+    columns: dict[str, str]
+
+
+def header(text: str) -> Header:
+    """The header of a query file's text (``Header``)."""
+    fields: dict[str, str] = {}
+    columns: dict[str, str] = {}
+    field, names, indent = None, [], 0
+    for line in text.splitlines():
+        if not line.startswith("--"):
+            break
+        body = line[2:]
+        if field and body.startswith("  ") and body.strip():
+            fields[field] += " " + body.strip()
+            continue
+        field = None
+        if m := _HEADER_FIELD.fullmatch(body):
+            field, names = m.group(1), []
+            fields[field] = m.group(2)
+        elif m := _HEADER_COLUMN.fullmatch(body):
+            names = [name.strip() for name in m.group(2).split(",")]
+            indent = len(m.group(1)) + len(m.group(2)) + len(m.group(3))
+            columns.update({name: m.group(4).strip() for name in names})
+        elif names and body.strip() and len(body) - len(body.lstrip()) >= indent:
+            columns.update({name: columns[name] + " " + body.strip() for name in names})
+        else:
+            names = []
+    return Header(fields, columns)
 
 
 @functools.cache
@@ -105,7 +147,7 @@ def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
 # Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:
 # dict-surviving cache: global dictionary column 0 changed identity after being seeded for dictionary caching" (its
 # dictionary-aware caching operator, added by duckdb/duckdb#23447) on the bundled SUMO junction; on one thread it gives the rows. Remove an entry
-# when a DuckDB release no longer fails (tests/test_relations_of.py and the golden test run that drive).
+# when a DuckDB release no longer fails (tests/matching/test_relations_of.py and the golden test run that drive).
 SINGLE_THREADED = ("relations/ego_lanes.sql",)
 
 

@@ -137,9 +137,9 @@ class PolarsEngine(Engine):
 
 POLARS_MD5 = "unsupported function 'md5'"
 # The query files whose portable text Polars SQL (polars 2.1) cannot run, with the error it gives. Every other
-# query file runs there and gives DuckDB's rows: tests/test_polars.py runs each file on both over the same inputs
-# and checks this table both ways, and checks that each Polars override (and the md5 afterwards) gives DuckDB's
-# rows. polars_blocker says which of these the engine still runs (docs/engines.md has the table).
+# query file runs there and gives DuckDB's rows: tests/engines/test_polars.py runs each file on both over the same
+# inputs and checks this table both ways, and checks that each Polars override (and the md5 afterwards) gives
+# DuckDB's rows. polars_blocker says which of these the engine still runs (docs/engines.md has the table).
 POLARS_UNSUPPORTED: dict[str, str] = {
     "match/identify.sql": POLARS_MD5,
     # windows over the input order (an empty OVER ()), which DuckDB keeps and the other engines do not: ingest

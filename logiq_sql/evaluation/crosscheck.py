@@ -17,6 +17,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.errors import InputError
+from logiq_sql.core.sql import registered
 
 FOLLOWING_FOLLOWER = "2"  # SSM encounter type: the reporting vehicle (ego) follows the foe
 SSM_SCHEMA = {"ego_id": pl.String, "actor_id": pl.String, "t_s": pl.Float64, "ssm_ttc_s": pl.Float64}
@@ -50,14 +51,14 @@ def ttc_against_ssm(con: duckdb.DuckDBPyConnection, drive_id: str, ssm: pl.DataF
     ``relations`` must hold the SSM followers as egos (e.g. ``match --ego <their ids>``). ``ttc_s`` is NULL
     where logiq_sql finds the pair not closing or not in line, and the row is then a disagreement.
     """
-    con.register("_ssm", ssm.with_columns(pl.lit(drive_id).alias("drive_id")))
-    return con.sql("""
-        select s.drive_id, s.ego_id, s.actor_id, s.t_s, s.ssm_ttc_s, r.ttc_s, r.same_lane,
-               abs(r.ttc_s - s.ssm_ttc_s) as abs_error_s
-        from _ssm as s
-        inner join drive_inputs as d on s.drive_id = d.drive_id
-        left join relations as r
-            on r.drive_id = s.drive_id and r.ego_id = s.ego_id and r.actor_id = s.actor_id
-            and r.frame = cast(round(s.t_s / d.dt_s) as bigint)
-        order by s.ego_id, s.actor_id, s.t_s
-    """).pl()
+    with registered(con, "_ssm", ssm.with_columns(pl.lit(drive_id).alias("drive_id"))):
+        return con.sql("""
+            select s.drive_id, s.ego_id, s.actor_id, s.t_s, s.ssm_ttc_s, r.ttc_s, r.same_lane,
+                   abs(r.ttc_s - s.ssm_ttc_s) as abs_error_s
+            from _ssm as s
+            inner join drive_inputs as d on s.drive_id = d.drive_id
+            left join relations as r
+                on r.drive_id = s.drive_id and r.ego_id = s.ego_id and r.actor_id = s.actor_id
+                and r.frame = cast(round(s.t_s / d.dt_s) as bigint)
+            order by s.ego_id, s.actor_id, s.t_s
+        """).pl()

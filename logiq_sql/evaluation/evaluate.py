@@ -21,6 +21,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.errors import InputError, did_you_mean
+from logiq_sql.core.sql import registered
 from logiq_sql.storage import db
 
 KEY = ["drive_id", "scenario", "ego_id", "actor_id"]
@@ -220,6 +221,27 @@ def _rate(num: pl.Expr, den: pl.Expr) -> pl.Expr:
     return pl.when(den == 0).then(1.0).otherwise(num / den)
 
 
+def _notes(all_labels: pl.DataFrame, dt: pl.DataFrame, egos: pl.DataFrame, preds: pl.DataFrame,
+           other_preds: int) -> list[str]:
+    """What the scores leave out: labels of drives or egos not matched, matches without labels."""
+    notes: list[str] = []
+    missing_drives = all_labels.join(dt, on="drive_id", how="anti")["drive_id"].unique().sort()
+    if missing_drives.len():
+        notes.append(f"{missing_drives.len()} drive(s) of the labels are not in the file (e.g. "
+                     f"{missing_drives[0]}): their labels are ignored.")
+    ignored = all_labels.join(dt, on="drive_id").join(egos, on=["drive_id", "ego_id"], how="anti")
+    if ignored.height:
+        notes.append(f"{ignored.height} label(s) of {ignored.select('drive_id', 'ego_id').n_unique()} ego(s) "
+                     "the matcher did not use as SUT (not in ego_lanes; match --ego chooses them) are ignored.")
+    if other_preds:
+        notes.append(f"{other_preds} match(es) of drives without labels, or of egos not in ego_lanes, are ignored.")
+    for name in sorted(set(all_labels["scenario"]) - set(preds["scenario"])):
+        notes.append(f"{name}: no matches of this scenario on the evaluated egos: every label is a FN.")
+    for name in sorted(set(preds["scenario"]) - set(all_labels["scenario"])):
+        notes.append(f"{name}: no labels of this scenario: every match is a FP.")
+    return notes
+
+
 def evaluate(db_path: str | Path, labels_path: str | Path, iou_threshold: float = 0.5,
              out: str | Path | None = None) -> Evaluation:
     """Score the matches in ``db_path`` against the labels in ``labels_path``, per scenario.
@@ -233,45 +255,27 @@ def evaluate(db_path: str | Path, labels_path: str | Path, iou_threshold: float 
     if not 0.0 < iou_threshold <= 1.0:
         raise InputError(f"--iou {iou_threshold}: the IoU threshold must be in (0, 1].")
     all_labels = read_labels(labels_path)
-    notes: list[str] = []
-    con = _open(db_path)
-    try:
-        con.register("_label_drives", all_labels.select("drive_id").unique())
-        dt = con.sql("select drive_id, dt_s from drive_inputs where status = 'ingested' "
-                     "and drive_id in (select drive_id from _label_drives)").pl()
-        con.register("_dt", dt)
-        egos = con.sql("select distinct drive_id, ego_id from ego_lanes "
-                       "where drive_id in (select drive_id from _dt)").pl()
-        con.register("_egos", egos)
-        preds = con.sql("select m.match_id, m.scenario, m.drive_id, m.ego_id, m.actor_id, m.start_s, m.end_s, "
-                        "m.start_frame, m.end_frame from matches as m "
-                        "inner join _egos as e on m.drive_id = e.drive_id and m.ego_id = e.ego_id").pl()
-        other_preds = con.execute("select count(*) from matches as m anti join _egos as e "
-                                  "on m.drive_id = e.drive_id and m.ego_id = e.ego_id").fetchall()[0][0]
-        labels = _frames(all_labels.join(egos, on=["drive_id", "ego_id"]), dt)
-        missing_drives = all_labels.join(dt, on="drive_id", how="anti")["drive_id"].unique().sort()
-        if missing_drives.len():
-            notes.append(f"{missing_drives.len()} drive(s) of the labels are not in the file (e.g. "
-                         f"{missing_drives[0]}): their labels are ignored.")
-        ignored = all_labels.join(dt, on="drive_id").join(egos, on=["drive_id", "ego_id"], how="anti")
-        if ignored.height:
-            notes.append(f"{ignored.height} label(s) of {ignored.select('drive_id', 'ego_id').n_unique()} ego(s) "
-                         "the matcher did not use as SUT (not in ego_lanes; match --ego chooses them) are ignored.")
-        if other_preds:
-            notes.append(f"{other_preds} match(es) of drives without labels, or of egos not in ego_lanes, are ignored.")
-        scenarios = sorted(set(all_labels["scenario"]) | set(preds["scenario"]))
-        for name in sorted(set(all_labels["scenario"]) - set(preds["scenario"])):
-            notes.append(f"{name}: no matches of this scenario on the evaluated egos: every label is a FN.")
-        for name in sorted(set(preds["scenario"]) - set(all_labels["scenario"])):
-            notes.append(f"{name}: no labels of this scenario: every match is a FP.")
-        labels = labels.sort(*KEY, "start_s", "end_s").with_row_index("label_idx")  # index order breaks IoU ties
-        preds = preds.sort(*KEY, "start_s", "end_s").with_row_index("pred_idx")
-        con.register("_labels", labels)
-        con.register("_preds", preds)
-        con.register("_scenarios", pl.DataFrame({"scenario": scenarios}, schema={"scenario": pl.String}))
-        stamps = con.sql(TIMESTAMP_SQL).pl()
-    finally:
-        con.close()
+    with _open(db_path) as con:
+        with registered(con, "_label_drives", all_labels.select("drive_id").unique()):
+            dt = con.sql("select drive_id, dt_s from drive_inputs where status = 'ingested' "
+                         "and drive_id in (select drive_id from _label_drives)").pl()
+        with registered(con, "_dt", dt):
+            egos = con.sql("select distinct drive_id, ego_id from ego_lanes "
+                           "where drive_id in (select drive_id from _dt)").pl()
+        with registered(con, "_egos", egos):
+            preds = con.sql("select m.match_id, m.scenario, m.drive_id, m.ego_id, m.actor_id, m.start_s, m.end_s, "
+                            "m.start_frame, m.end_frame from matches as m "
+                            "inner join _egos as e on m.drive_id = e.drive_id and m.ego_id = e.ego_id").pl()
+            other_preds = con.execute("select count(*) from matches as m anti join _egos as e "
+                                      "on m.drive_id = e.drive_id and m.ego_id = e.ego_id").fetchall()[0][0]
+            scenarios = sorted(set(all_labels["scenario"]) | set(preds["scenario"]))
+            labels = (_frames(all_labels.join(egos, on=["drive_id", "ego_id"]), dt)
+                      .sort(*KEY, "start_s", "end_s").with_row_index("label_idx"))  # index order breaks IoU ties
+            preds = preds.sort(*KEY, "start_s", "end_s").with_row_index("pred_idx")
+            with (registered(con, "_labels", labels), registered(con, "_preds", preds),
+                  registered(con, "_scenarios", pl.DataFrame({"scenario": scenarios}, schema={"scenario": pl.String}))):
+                stamps = con.sql(TIMESTAMP_SQL).pl()
+    notes = _notes(all_labels, dt, egos, preds, other_preds)
 
     chosen, best_iou = pair_intervals(labels, preds, iou_threshold)
     events = _events(labels, preds, chosen, best_iou)

@@ -182,37 +182,36 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
                 for batch in match_batches(con, ids, batch_rows)]
         for step, ((tolerance, _closing), batch, group) in enumerate(work, 1):
             todo = pl.DataFrame({"drive_id": batch}, schema={"drive_id": pl.String})
-            con.register("run_drives", todo)
-            if runner.name != "duckdb":  # the DuckDB engine reads the registered frame directly
-                runner.register("run_drives", todo)
-            say(f"[{step}/{len(work)}] {len(batch)} drive(s): {', '.join(s.name for s in group)}")
-            for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
-                con.execute(f"drop table if exists temp.main.{table}")
-            runner.select_drives()
-            values = {s.name: run_values(s, ego_values, range_m) for s in group}
-            prepare_relations(runner, group, values[group[0].name])
-            kinds = relation_kinds_csv(group)
-            say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
-                f"(lane tolerance {tolerance:g} m"
-                + ("" if kinds == ALL_KINDS_CSV else f"; actors of kinds {kinds.strip(',')} only") + ")")
-            if writer is not None:
-                found = writer.write_batch(group, values, batch)
-                for name, n in found.items():
-                    say(f"  {name}: {n} matches")
-                runner.forget(tuple(PERSISTED))
+            with registered(con, "run_drives", todo):
+                if runner.name != "duckdb":  # the DuckDB engine reads the registered frame directly
+                    runner.register("run_drives", todo)
+                say(f"[{step}/{len(work)}] {len(batch)} drive(s): {', '.join(s.name for s in group)}")
+                for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
+                    con.execute(f"drop table if exists temp.main.{table}")
+                runner.select_drives()
+                values = {s.name: run_values(s, ego_values, range_m) for s in group}
+                prepare_relations(runner, group, values[group[0].name])
+                kinds = relation_kinds_csv(group)
+                say(f"  relations: {runner.frame('select count(*) as n from relations')['n'][0]:,} ego-actor rows "
+                    f"(lane tolerance {tolerance:g} m"
+                    + ("" if kinds == ALL_KINDS_CSV else f"; actors of kinds {kinds.strip(',')} only") + ")")
+                if writer is not None:
+                    found = writer.write_batch(group, values, batch)
+                    for name, n in found.items():
+                        say(f"  {name}: {n} matches")
+                    runner.forget(tuple(PERSISTED))
+                    runner.release_drives()
+                    continue
+                outputs = []
+                runner.share(shared_phase_steps(group, values))
+                for s in group:
+                    outputs.append(run_scenario(runner, s, values[s.name]))
+                    say(f"  {s.name}: {outputs[-1].matches.height} matches")
+                runner.persist(tuple(PERSISTED))
                 runner.release_drives()
-                continue
-            outputs = []
-            runner.share(shared_phase_steps(group, values))
-            for s in group:
-                outputs.append(run_scenario(runner, s, values[s.name]))
-                say(f"  {s.name}: {outputs[-1].matches.height} matches")
-            runner.persist(tuple(PERSISTED))
-            runner.release_drives()
-            store_batch(con, run_id, ego, range_m, todo, outputs, keep)
+                store_batch(con, run_id, ego, range_m, todo, outputs, keep)
         if writer is not None:
             writer.finish(con)
-        con.register("run_drives", run_drives)
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date
         if cache is not None:
@@ -273,20 +272,21 @@ def drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.
 
 
 def read_result(con: duckdb.DuckDBPyConnection, run_drives: pl.DataFrame, names: list[str]) -> MatchResult:
-    con.register("_names", pl.DataFrame({"scenario": names}))
-    in_run = ("scenario in (select scenario from _names) and drive_id in (select drive_id from run_drives)")
-    matches = con.sql(f"select * from matches where {in_run} order by scenario, drive_id, ego_id, actor_id, start_frame").pl()
-    con.register("_ids", matches.select("match_id"))
-    return MatchResult(
-        matches=matches,
-        match_phases=con.sql("select * from match_phases where match_id in (select match_id from _ids) "
-                             "order by match_id, phase_index").pl(),
-        kpis=con.sql("select k.* from kpis k join _ids using (match_id) order by scenario, match_id").pl(),
-        coverage=con.sql("select * from coverage where scenario in (select scenario from _names) "
-                         "order by scenario, item, bucket_index nulls last, bucket").pl(),
-        drives=con.sql("select * from drives where drive_id in (select drive_id from run_drives) "
-                       "order by drive_id").pl(),
-    )
+    in_run = "scenario in (select scenario from _names) and drive_id in (select drive_id from run_drives)"
+    with registered(con, "run_drives", run_drives), registered(con, "_names", pl.DataFrame({"scenario": names})):
+        matches = con.sql(f"select * from matches where {in_run} "
+                          "order by scenario, drive_id, ego_id, actor_id, start_frame").pl()
+        with registered(con, "_ids", matches.select("match_id")):
+            return MatchResult(
+                matches=matches,
+                match_phases=con.sql("select * from match_phases where match_id in (select match_id from _ids) "
+                                     "order by match_id, phase_index").pl(),
+                kpis=con.sql("select k.* from kpis k join _ids using (match_id) order by scenario, match_id").pl(),
+                coverage=con.sql("select * from coverage where scenario in (select scenario from _names) "
+                                 "order by scenario, item, bucket_index nulls last, bucket").pl(),
+                drives=con.sql("select * from drives where drive_id in (select drive_id from run_drives) "
+                               "order by drive_id").pl(),
+            )
 
 
 def render(scenario: str, *, overrides: dict[str, str] | None = None, ego: str = "auto",

@@ -1,7 +1,11 @@
-"""docs/tables.md, generated from the tables' declarations (`make docs`)."""
+"""The docs generated from the code's declarations (`make docs`, ``python -m logiq_sql.storage.docs``):
+docs/tables.md from the tables', the table of formats in docs/formats.md from the reader registry."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from logiq_sql.core.formats import formats_markdown
 from logiq_sql.core.schema import duckdb_type
 from logiq_sql.storage.tables import DRIVES_DOC, TABLES
 
@@ -54,3 +58,28 @@ def docs_markdown() -> str:
             "## `drives` (view)", "",
             "Every drive of `drive_inputs` with its status over all scenarios run: " + DRIVES_DOC["status"], ""]
     return "\n".join(out)
+
+
+FORMATS_BEGIN = "<!-- the formats: generated from logiq_sql/core/formats.py by `make docs`; edit them there -->"
+FORMATS_END = "<!-- end of the formats -->"
+
+
+def with_formats(page: str) -> str:
+    """docs/formats.md's text ``page`` with its table of formats (between FORMATS_BEGIN and FORMATS_END) as the
+    reader registry gives it."""
+    before, begin, rest = page.partition(FORMATS_BEGIN + "\n")
+    _old, end, after = rest.partition(FORMATS_END)
+    if not begin or not end:
+        raise ValueError(f"docs/formats.md: the lines {FORMATS_BEGIN} and {FORMATS_END} are missing")
+    return before + begin + formats_markdown() + "\n" + end + after
+
+
+def write_docs(root: Path) -> None:
+    """docs/tables.md and the table of formats in docs/formats.md under ``root`` (the repository)."""
+    (root / "docs/tables.md").write_text(docs_markdown() + "\n")
+    formats = root / "docs/formats.md"
+    formats.write_text(with_formats(formats.read_text()))
+
+
+if __name__ == "__main__":
+    write_docs(Path.cwd())

@@ -28,6 +28,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.errors import LogiqError
+from logiq_sql.core.sql import registered
 from logiq_sql.storage import tables
 from logiq_sql.storage.db import stored_schema
 
@@ -231,10 +232,19 @@ class StepCache:
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
                                    "As the step's query returns it (step_cache.step names the query; its header "
                                    "describes the column).")
-        con.register("_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String}))
-        if not write and self._entries(step, key) == len(owners) * len(self._batch):
-            con.unregister("_owners")  # each owner's entry already names this key for every drive of the batch
-            return
+        with registered(con, "_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String})):
+            if not write and self._entries(step, key) == len(owners) * len(self._batch):
+                return  # each owner's entry already names this key for every drive of the batch
+            self._point_entries(step, key, table, data, write)
+            if write:
+                self._write_s += time.process_time() - started
+                self._cells += cells
+
+    def _point_entries(self, step: str, key: str, table: str, data: str, write: bool) -> None:
+        """In one transaction: the batch's rows of ``table`` written to ``data`` (``write``), the entries of the
+        owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry refers to any more
+        removed."""
+        con, stored = self.con, stored_schema(self.con)
         con.execute("begin transaction")
         try:
             if write:
@@ -255,14 +265,9 @@ class StepCache:
                 if not con.execute("select count(*) from step_cache where step_key = $o", {"o": old}).fetchall()[0][0]:
                     con.execute(f"drop table {stored}.{old_table}")
             con.execute("commit")
-            if write:
-                self._write_s += time.process_time() - started
-                self._cells += cells
         except BaseException:
             con.execute("rollback")
             raise
-        finally:
-            con.unregister("_owners")
 
     def summary(self) -> str:
         return (f"step cache: {self.reused} step(s) reused, {self.computed} computed"

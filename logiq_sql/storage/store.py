@@ -10,7 +10,7 @@ from pathlib import Path
 import duckdb
 import polars as pl
 
-from logiq_sql.core.sql import query_text, recount_coverage
+from logiq_sql.core.sql import header, query_text, recount_coverage
 from logiq_sql.core.timing import stage
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import tables
@@ -138,7 +138,8 @@ def describe_persisted(con: duckdb.DuckDBPyConnection, stored: str, table: str) 
     """Table and column comments for a kept table, from the header of the file that defines it."""
     source = PERSISTED[table]
     if source.endswith(".sql"):
-        grain, docs = tables.header_docs(query_text(source.removeprefix("queries/")))
+        found = header(query_text(source.removeprefix("queries/")))
+        grain, docs = found.fields["grain"], found.columns
     else:
         grain, docs = ENCROACHMENTS_GRAIN, {}
     tables.comment_derived(con, f"{stored}.{table}", table,

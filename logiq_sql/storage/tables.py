@@ -3,8 +3,6 @@ on each column (and adds columns a newer version declares), and appending rows."
 
 from __future__ import annotations
 
-import re
-
 import duckdb
 import polars as pl
 
@@ -223,29 +221,6 @@ KEY_DOCS = {
     "frame": "Sample index.", "t_s": "Time since the start of the drive, seconds.",
     "map_id": "Map.", "junction_id": "Junction.",
 }
-
-
-def header_docs(sql: str) -> tuple[str | None, dict[str, str]]:
-    """The grain and the column descriptions of a query file's header comment: ``-- grain: ...`` and
-    ``--   name[, name]   description`` lines, a description continuing on lines indented as deep."""
-    grain, docs, current, indent = None, {}, [], 0
-    for line in sql.splitlines():
-        if not line.startswith("--"):
-            break
-        body = line[2:]
-        if body.startswith(" grain:"):
-            grain = body.split(":", 1)[1].strip()
-            continue
-        m = re.match(r"(\s{2,})([a-z_][a-z0-9_]*(?:,\s*[a-z_][a-z0-9_]*)*)(\s{2,})(\S.*)", body)
-        if m:
-            current = [name.strip() for name in m.group(2).split(",")]
-            indent = len(m.group(1)) + len(m.group(2)) + len(m.group(3))
-            docs.update({name: m.group(4).strip() for name in current})
-        elif current and body.strip() and len(body) - len(body.lstrip()) >= indent:
-            docs.update({name: docs[name] + " " + body.strip() for name in current})
-        else:
-            current = []
-    return grain, docs
 
 
 def comment_derived(con: duckdb.DuckDBPyConnection, qualified: str, name: str, doc: str,

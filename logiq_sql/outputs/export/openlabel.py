@@ -25,6 +25,7 @@ from pathlib import Path
 
 import polars as pl
 
+from logiq_sql.core.sql import registered
 from logiq_sql.outputs.export import OPENLABEL_SCHEMA, open_db
 
 _MATCH_COLUMNS = {"match_id", "scenario"}
@@ -49,6 +50,24 @@ def _data(values: dict) -> dict:
     return out
 
 
+# runs of consecutive frames per actor of _export_actors (gaps and islands), its kind and first box
+ACTOR_INTERVALS_SQL = """
+with rows as (
+    select t.drive_id, t.actor_id, kind, is_ego, frame, length_m, width_m,
+           frame - row_number() over (partition by t.drive_id, t.actor_id order by frame) as island
+    from tracks t join _export_actors a on t.drive_id = a.drive_id and t.actor_id = a.actor_id),
+islands as (
+    select drive_id, actor_id, min(frame) as s, max(frame) as e, arg_min(kind, frame) as kind,
+           bool_or(is_ego) as is_ego, arg_min(length_m, frame) as length_m,
+           arg_min(width_m, frame) as width_m
+    from rows group by drive_id, actor_id, island)
+select drive_id, actor_id, arg_min(kind, s) as kind, bool_or(is_ego) as is_ego,
+       arg_min(length_m, s) as length_m, arg_min(width_m, s) as width_m,
+       list(struct_pack(frame_start := s, frame_end := e) order by s) as intervals
+from islands group by drive_id, actor_id order by drive_id, actor_id
+"""
+
+
 def export_openlabel(db_path: str | Path, out: str | Path, drives: list[str] | None = None) -> list[Path]:
     """Write ``{drive_id}.json`` into ``out`` for every ingested drive (or those named); returns the files."""
     out = Path(out)
@@ -59,35 +78,21 @@ def export_openlabel(db_path: str | Path, out: str | Path, drives: list[str] | N
                              "where status = 'ingested' order by drive_id").pl()
         if drives:
             inputs = inputs.filter(pl.col("drive_id").is_in(drives))
-        con.register("_export_drives", inputs.select("drive_id"))
-        matches = con.sql("select * from matches where drive_id in (select drive_id from _export_drives) "
+        with registered(con, "_export_drives", inputs.select("drive_id")):
+            matches = con.sql("select * from matches where drive_id in (select drive_id from _export_drives) "
                               "order by drive_id, start_frame, match_id").pl()
-        con.register("_export_matches", matches.select("match_id"))
-        phases = con.sql("select * from match_phases where match_id in (select match_id from _export_matches) "
-                             "order by match_id, phase_index").pl()
-        kpis = (con.sql("select * from kpis where match_id in (select match_id from _export_matches)").pl()
-                if "kpis" in have else pl.DataFrame({"match_id": []}, schema={"match_id": pl.String}))
-        # every actor to describe: the recorded ego and the egos and actors of matches
-        con.register("_export_actors", pl.concat([
-            inputs.select("drive_id", actor_id="ego_actor_id").drop_nulls(),
-            matches.select("drive_id", actor_id="ego_id"), matches.select("drive_id", "actor_id")]).unique())
-        # runs of consecutive frames per actor (gaps and islands), its kind and first box
-        actors = con.sql("""
-            with rows as (
-                select t.drive_id, t.actor_id, kind, is_ego, frame, length_m, width_m,
-                       frame - row_number() over (partition by t.drive_id, t.actor_id order by frame) as island
-                from tracks t join _export_actors a on t.drive_id = a.drive_id and t.actor_id = a.actor_id),
-            islands as (
-                select drive_id, actor_id, min(frame) as s, max(frame) as e, arg_min(kind, frame) as kind,
-                       bool_or(is_ego) as is_ego, arg_min(length_m, frame) as length_m,
-                       arg_min(width_m, frame) as width_m
-                from rows group by drive_id, actor_id, island)
-            select drive_id, actor_id, arg_min(kind, s) as kind, bool_or(is_ego) as is_ego,
-                   arg_min(length_m, s) as length_m, arg_min(width_m, s) as width_m,
-                   list(struct_pack(frame_start := s, frame_end := e) order by s) as intervals
-            from islands group by drive_id, actor_id order by drive_id, actor_id""").pl()
-        frames = dict(con.execute("select drive_id, [min(frame), max(frame)] from tracks "
-                                  "where drive_id in (select drive_id from _export_drives) group by 1").fetchall())
+            with registered(con, "_export_matches", matches.select("match_id")):
+                phases = con.sql("select * from match_phases where match_id in (select match_id from "
+                                 "_export_matches) order by match_id, phase_index").pl()
+                kpis = (con.sql("select * from kpis where match_id in (select match_id from _export_matches)").pl()
+                        if "kpis" in have else pl.DataFrame({"match_id": []}, schema={"match_id": pl.String}))
+            # every actor to describe: the recorded ego and the egos and actors of matches
+            with registered(con, "_export_actors", pl.concat([
+                    inputs.select("drive_id", actor_id="ego_actor_id").drop_nulls(),
+                    matches.select("drive_id", actor_id="ego_id"), matches.select("drive_id", "actor_id")]).unique()):
+                actors = con.sql(ACTOR_INTERVALS_SQL).pl()
+            frames = dict(con.execute("select drive_id, [min(frame), max(frame)] from tracks "
+                                      "where drive_id in (select drive_id from _export_drives) group by 1").fetchall())
     kpi_by_match = {r["match_id"]: r for r in kpis.to_dicts()}
     written = []
     for drive in inputs.to_dicts():

@@ -1,0 +1,224 @@
+"""The step cache (logiq_sql/storage/step_cache.py): after a change of a step's SQL, of a parameter, or of a drive's rows,
+exactly the steps that depend on it run again, the rest are read from the cache, and the results are those of a
+run that recomputes everything (``match --force``)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import duckdb
+import pytest
+
+from logiq_sql import ingest, match
+from logiq_sql.core import sql
+from logiq_sql.core.sql import bind, tables_read
+from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
+
+ROOT = Path(__file__).resolve().parents[2]
+NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
+DRIVES = [NGSIM / "USA_US101-22_1_T-1.xml.gz", NGSIM / "USA_US101-26_1_T-1.xml.gz"]
+SCENARIOS = ["follower_vehicle", "sut_cut_out"]
+COMPARED = {  # every output of a run, with the columns that name the run left out
+    "matches": "select * exclude (run_id) from matches",
+    "match_phases": "select * from match_phases",
+    "kpis": "select * from kpis",
+    "coverage_samples": "select * from coverage_samples",
+    "coverage": "select * from coverage",
+    "drive_scenarios": "select * exclude (run_id) from drive_scenarios",
+    "ego_lanes": "select * from ego_lanes",
+}
+
+
+@pytest.fixture(autouse=True)
+def keep_every_step(monkeypatch):
+    # by default the cache keeps only the steps that took longer to compute than keeping them would cost, which
+    # depends on the machine: here every step is kept, so which steps are reused is known
+    monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "all")
+
+
+@pytest.fixture(scope="module")
+def matched_once(tmp_path_factory, ingested) -> Path:
+    db = ingested(tmp_path_factory.mktemp("step_cache") / "x.duckdb", "commonroad", DRIVES)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("LOGIQ_SQL_STEP_CACHE", "all")
+        match(db, scenarios=SCENARIOS, batch_rows=1)  # one drive per batch
+    return db
+
+
+@pytest.fixture
+def matched(tmp_path, matched_once) -> Path:
+    db = tmp_path / "x.duckdb"
+    shutil.copyfile(matched_once, db)
+    return db
+
+
+def assert_same_outputs(a: Path, b: Path) -> None:
+    """The outputs of the two files are the same multisets of rows (EXCEPT ALL both ways)."""
+    with duckdb.connect() as con:
+        con.execute(f"attach '{a}' as a (read_only)")
+        con.execute(f"attach '{b}' as b (read_only)")
+        for table, query in COMPARED.items():
+            qa, qb = query.replace(" from ", " from a."), query.replace(" from ", " from b.")
+            total = con.execute(f"select count(*) from ({qa})").fetchall()[0][0]
+            only_a = con.execute(f"select count(*) from ({qa} except all {qb})").fetchall()[0][0]
+            only_b = con.execute(f"select count(*) from ({qb} except all {qa})").fetchall()[0][0]
+            assert (only_a, only_b) == (0, 0), f"{table}: {only_a} rows only in {a.name}, {only_b} only in {b.name}"
+            assert total > 0 or table == "coverage_samples", table
+
+
+def forced_copy(db: Path, before: Path, **kwargs) -> Path:
+    """``before`` (the file as it was before the cached run on ``db``) matched again with --force."""
+    forced = db.with_name("forced.duckdb")
+    shutil.copyfile(before, forced)
+    match(forced, force=True, **kwargs)
+    return forced
+
+
+def dependent_steps(scenario: str, old: dict[str, str], new: dict[str, str], scenario_path=None) -> set[str]:
+    """The step labels of ``scenario``'s phase steps whose bound values differ between the overrides ``old`` and
+    ``new``, and every step that reads one of them: what must run again."""
+    values = []
+    for overrides in (old, new):
+        (s,) = resolve_scenarios([scenario], overrides, scenario_path)
+        values.append(run_values(s, parse_ego("auto"), 200.0))
+    changed: set[str] = set()
+    out = set()
+    for table, rel in [*phase_steps(s), ("scenario_matches", "match/identify.sql")]:
+        if bind(rel, values[0]) != bind(rel, values[1]) or tables_read(rel) & changed:
+            changed.add(table)
+            out.add(f"{table} {rel}")
+    return out
+
+
+def statuses(result, scenario: str) -> dict[tuple[tuple[str, ...], str], str]:
+    """(batch drives, step) -> reused or computed, for the steps run for ``scenario`` alone."""
+    return {(batch, step): status for batch, owners, step, status in result.cache_steps if owners == (scenario,)}
+
+
+def assert_reran(result, must_run) -> None:
+    """Every cached step of ``result`` was computed when ``must_run(batch, owners, step)``, else reused; a step
+    that must run may be reused from a step of the same batch with the same query file computed before it (the
+    empty stand-ins phase_2 .. phase_4 of a one-phase scenario have one key)."""
+    computed: set[tuple[tuple[str, ...], str]] = set()
+    for batch, owners, step, status in result.cache_steps:
+        query = step.split(" ", 1)[1]
+        if not must_run(batch, owners, step):
+            assert status == "reused", (batch, owners, step)
+        elif status == "reused":
+            assert (batch, query) in computed, (batch, owners, step)
+        else:
+            computed.add((batch, query))
+
+
+@pytest.mark.parametrize("override", [{"same_road_limit": "6sec"}, {"min_scenario_duration": "3sec"}])
+def test_a_parameter_change_reruns_the_steps_that_bind_it_and_those_after_them(matched, tmp_path, override):
+    before = tmp_path / "before.duckdb"
+    shutil.copyfile(matched, before)
+    result = match(matched, scenarios=SCENARIOS, overrides=override, batch_rows=1)
+    assert result.up_to_date == {"follower_vehicle": 0, "sut_cut_out": 2}  # sut_cut_out has no such parameter
+    rerun = dependent_steps("follower_vehicle", {}, override)
+    assert rerun and (("phase_1 phases/follower_vehicle.sql" in rerun) == ("same_road_limit" in override))
+    got = statuses(result, "follower_vehicle")
+    assert {b for b, _ in got} == {(d,) for d in ("USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b")}
+    assert_reran(result, lambda _b, _o, step: step in rerun)
+    assert got[(("USA_US101-22_1_T-1@2018b",), "relations relations/relations.sql")] == "reused"
+    assert "step cache:" in result.summary() and "rows kept in" in result.summary()
+    assert_same_outputs(matched, forced_copy(matched, before, scenarios=SCENARIOS, overrides=override))
+
+
+def test_force_recomputes_every_step(matched):
+    result = match(matched, scenarios=SCENARIOS, force=True)
+    assert result.cache_steps and {status for *_, status in result.cache_steps} == {"computed"}
+
+
+def own_follower(folder: Path, version: int, sql_text: str) -> Path:
+    """follower_vehicle as a user's scenario (its phase query beside it), with this version and phase SQL."""
+    (folder / "phases").mkdir(parents=True, exist_ok=True)
+    toml = (ROOT / "scenarios/follower_vehicle.toml").read_text()
+    (folder / "follower_vehicle.toml").write_text(toml.replace("version = 4", f"version = {version}"))
+    (folder / "phases/follower_vehicle.sql").write_text(sql_text)
+    sql.query_text.cache_clear()  # a new process would read the file again
+    return folder
+
+
+def test_a_changed_query_reruns_its_step_and_those_after_it(ingested, tmp_path):
+    db = ingested(tmp_path / "x.duckdb", "commonroad", DRIVES)
+    original = (ROOT / "queries/phases/follower_vehicle.sql").read_text()
+    folder = own_follower(tmp_path / "mine", 1, original)
+    match(db, scenarios=["follower_vehicle"], scenario_path=folder)
+    before = tmp_path / "before.duckdb"
+    shutil.copyfile(db, before)
+    # the actor counts as on the Ego's road only within half the same_road_limit: fewer or shorter matches
+    changed = original.replace("+ $same_road_limit_s", "+ $same_road_limit_s / 2")
+    assert changed != original
+    own_follower(folder, 2, changed)
+    result = match(db, scenarios=["follower_vehicle"], scenario_path=folder)
+    phase = f"phase_1 {folder.resolve()}/phases/follower_vehicle.sql"
+    after = {phase, "phase_runs match/phase_runs.sql", "chain match/chain.sql", "phase_2 match/no_phase.sql",
+             "phase_3 match/no_phase.sql", "phase_4 match/no_phase.sql", "scenario_match match/sequential.sql",
+             "scenario_matches match/identify.sql"}
+    assert phase in {step for *_, step, status in result.cache_steps if status == "computed"}
+    assert_reran(result, lambda _b, _o, step: step in after)
+    assert_same_outputs(db, forced_copy(db, before, scenarios=["follower_vehicle"], scenario_path=folder))
+    sql.query_text.cache_clear()
+
+
+def test_a_reingested_drive_drops_its_entries_and_reruns_every_step(matched, tmp_path):
+    drive, other = "USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b"
+    with duckdb.connect(str(matched), read_only=True) as con:
+        had = con.execute("select count(*) from step_cache where drive_id = $d", {"d": drive}).fetchall()[0][0]
+        version = con.execute("select ingest_version from ingest_versions where drive_id = $d",
+                              {"d": drive}).fetchall()[0][0]
+    assert had > 0
+    ingest("commonroad", [DRIVES[0]], matched)
+    with duckdb.connect(str(matched), read_only=True) as con:
+        assert con.execute("select count(*) from step_cache where drive_id = $d", {"d": drive}).fetchall()[0][0] == 0
+        assert con.execute("select ingest_version from ingest_versions where drive_id = $d",
+                           {"d": drive}).fetchall()[0][0] != version
+        for (table,) in con.execute("select table_name from duckdb_tables() where table_name like 'step_cache_%'"
+                                    ).fetchall():
+            assert con.execute(f"select count(*) from {table} where drive_id = $d", {"d": drive}
+                               ).fetchall()[0][0] == 0, table
+    before = tmp_path / "before.duckdb"
+    shutil.copyfile(matched, before)
+    override = {"same_road_limit": "6sec"}  # both drives rerun, one per batch
+    result = match(matched, scenarios=SCENARIOS, overrides=override, batch_rows=1)
+    rerun = dependent_steps("follower_vehicle", {}, override)
+    assert_reran(result, lambda batch, owners, step: batch == (drive,)
+                 or (owners == ("follower_vehicle",) and step in rerun))
+    assert {o for _b, o, *_ in result.cache_steps} == {("follower_vehicle",), ("sut_cut_out",)}
+    assert {b for b, *_ in result.cache_steps} == {(drive,), (other,)}
+    assert_same_outputs(matched, forced_copy(matched, before, scenarios=SCENARIOS, overrides=override))
+
+
+def test_batches_of_several_drives_read_the_entries_of_single_drive_batches(matched, tmp_path):
+    before = tmp_path / "before.duckdb"
+    shutil.copyfile(matched, before)
+    override = {"min_scenario_duration": "3sec"}
+    result = match(matched, scenarios=["follower_vehicle"], overrides=override)  # both drives in one batch
+    got = statuses(result, "follower_vehicle")
+    assert {b for b, _ in got} == {("USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b")}
+    assert {s for (_b, s), status in got.items() if status == "reused"} >= {"phase_1 phases/follower_vehicle.sql"}
+    assert_same_outputs(matched, forced_copy(matched, before, scenarios=["follower_vehicle"], overrides=override))
+
+
+def test_the_cache_can_be_turned_off(matched, monkeypatch):
+    monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "off")
+    result = match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
+    assert result.cache_steps == [] and "step cache" not in result.summary()
+
+
+def test_the_cache_command_reports_the_size_and_clears(matched, capsys):
+    from logiq_sql.cli import main
+
+    assert main(["cache", "--db", str(matched)]) == 0
+    rows = int(capsys.readouterr().out.split(": ", 1)[1].split(" rows")[0].replace(",", ""))
+    with duckdb.connect(str(matched), read_only=True) as con:
+        tables = [t for (t,) in con.execute("select table_name from duckdb_tables() "
+                                            "where table_name like 'step_cache_%'").fetchall()]
+        assert rows == sum(con.execute(f"select count(*) from {t}").fetchall()[0][0] for t in tables) > 0
+    assert main(["cache", "--db", str(matched), "--clear"]) == 0
+    assert "0 rows in 0 table(s), 0 index entries" in capsys.readouterr().out
+    result = match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
+    assert_reran(result, lambda *_: True)  # nothing left to reuse
