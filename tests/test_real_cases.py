@@ -9,7 +9,9 @@
   lane forks into two overlapping lanes: a change of lane id alone, no cut-in.
 - NGSIM Lankershim (USA_Lanker-2_20): ego 2606 follows car 2597, straight in front of it, through a double left
   turn; car 2529, further round the bend 10-15 m to the side and heading 55-75 degrees off the ego's way, is not
-  the leader it cuts out from, although its box lies over the ego's turn lanelet.
+  the leader it cuts out from, although its box lies over the ego's turn lanelet. In the same turn ego 2533 follows
+  car 2529, straight in front of it, while car 2518, further round the bend 6-8 m to the side, heads 37-60 degrees
+  off the ego's way: 2518 is no leader the ego cuts out from either.
 - `explain` points at the moment a person looks at: nuScenes scene-0103's bicycle at its closest pass; a
   Lankershim follower's first seconds that are no match, and why.
 """
@@ -133,3 +135,23 @@ def test_explain_says_why_the_first_seconds_of_a_follower_are_not_matched(explai
     assert "-- matched" in text
     assert ("not matched from 0.0 s to 2.4 s (frames 0-24): follower_vehicle does not hold: actor_on_ego_road at 25 "
             "of 25 frames (first at 0.0 s: actor_on_ego_road is false: actor_lane_id = 3602") in text
+
+
+def test_a_car_round_the_bend_heading_less_than_45_degrees_off_is_not_the_leader(ngsim_db, ngsim_run):
+    """Lanker-2_20 ego 2533 shifts over the line between the two turn lanelets (3664 -> 3666) at 2.5 s; car 2529
+    is straight in front of it throughout, car 2518 further round the bend, turned 37-60 degrees (under 45 at
+    some frames, so the case-6 rule at 45 degrees let it be the leader)."""
+    in_front = in_ego_frame(ngsim_db, LANKER_2_20, "2533", "2529").filter(pl.col("t_s").is_between(0.8, 2.4))
+    further = in_ego_frame(ngsim_db, LANKER_2_20, "2533", "2518").filter(pl.col("t_s").is_between(0.8, 2.4))
+    with duckdb.connect(str(ngsim_db), read_only=True) as con:
+        off = con.sql("""select degrees(abs(atan2(sin(a.heading_rad - e.heading_rad),
+                                                   cos(a.heading_rad - e.heading_rad)))) as off_deg
+                         from tracks e join tracks a using (drive_id, frame)
+                         where e.drive_id = $d and e.actor_id = '2533' and a.actor_id = '2518'
+                           and e.t_s between 0.8 and 2.4""", params={"d": LANKER_2_20}).pl()["off_deg"]
+    assert (in_front["left_m"].abs() < 3.5).all() and in_front["fwd_m"].is_between(9, 14).all()
+    assert further["left_m"].is_between(5.5, 9).all() and (further["fwd_m"] > in_front["fwd_m"] + 4).all()
+    assert off.is_between(35, 62).all() and off.min() < 45
+    cut_outs = ngsim_run.matches.filter((pl.col("scenario") == "sut_cut_out") & (pl.col("drive_id") == LANKER_2_20)
+                                        & (pl.col("ego_id") == "2533") & (pl.col("actor_id") == "2518"))
+    assert cut_outs.is_empty()
