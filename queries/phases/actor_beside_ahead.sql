@@ -1,8 +1,9 @@
 -- phase: actor_beside_ahead (cut_in_ahead_of_ego, phase 1; logiq_sql's own scenario, not a LogIQ page)
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is ahead of the ego (dx_m > 0): the
 --        phase contract (docs/scenarios.md)
--- reads: relations, ego_lanes, drive_inputs, lane_line (joined and windowed on the integer keys)
--- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s
+-- reads: relations, ego_lanes, drive_inputs, lane_line, track_lanes (joined and windowed on the integer keys)
+-- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
+--         $lane_calculation_tolerance_length_m
 --
 -- Conditions (holds = all of them):
 --   actor_kind_ok      the actor is of one of the kinds
@@ -15,6 +16,13 @@
 --                      in the lane it has now or one that continues it (lane_line). An ego that drifts over the
 --                      line towards the actor, without a counted lane change, does not make the actor cut in.
 --                      True when the actor is not in the ego's lane again later
+--   actor_left_ego_lane  the actor comes from the lane beside: if it was ahead in the ego's lane earlier in the
+--                      ego's lane run, it has since been more than lane_calculation_tolerance_length away from
+--                      the lane it was in then and the lanes that continue it (lane_line), or neither in the
+--                      ego's lane nor beside it. The ego's keep_lane rule read for the actor: a car that drifts
+--                      over the line into the lane beside and back, never further, has not left the ego's lane,
+--                      so its return is no cut-in (the two parallel lanelets of a double left turn swap a car's
+--                      label while it drives on)
 -- segment = the ego's lane run: the ego keeps its lane while the actor cuts in.
 with
 
@@ -33,11 +41,63 @@ ahead as (
     where r.dx_m > 0
 ),
 
+last_in as (
+    -- per frame, the actor's last frame ahead in the ego's lane so far in this lane run (a running max)
+    select
+        *,
+        max(case when same_lane then frame end) over (
+            partition by drive_key, ego_key, actor_key, lane_run order by frame
+            rows between unbounded preceding and current row
+        ) as last_in_lane_frame
+    from ahead
+),
+
+beside_after_in as (
+    -- the frames beside the ego after the actor was in its lane, with the lane the actor was in then: the lane it
+    -- left (a join back: last_value(... ignore nulls) does not run on every engine)
+    select b.drive_key, b.ego_key, b.actor_key, b.frame, d.map_id, i.actor_lane_id as left_lane_id
+    from last_in as b
+    inner join ahead as i
+        on b.drive_key = i.drive_key and b.ego_key = i.ego_key and b.actor_key = i.actor_key
+        and b.last_in_lane_frame = i.frame
+    inner join drive_inputs as d
+        on b.drive_key = d.drive_key
+    where b.adjacent_side is not null
+),
+
+near_left_lane as (
+    -- of those, the frames at which the actor is within the tolerance of the lane it left or a lane that continues
+    -- it (the ego's keep_lane rule: the lane it came from and its lane line)
+    select b.drive_key, b.ego_key, b.actor_key, b.frame
+    from beside_after_in as b
+    inner join lane_line as line
+        on b.map_id = line.map_id and b.left_lane_id = line.lane_id
+    inner join track_lanes as tl
+        on b.drive_key = tl.drive_key and b.actor_key = tl.actor_key and b.frame = tl.frame
+        and line.line_lane_id = tl.lane_id
+    where tl.dist_m <= $lane_calculation_tolerance_length_m
+    group by b.drive_key, b.ego_key, b.actor_key, b.frame
+),
+
+left_lane as (
+    -- per frame, the last frame so far in this lane run at which the actor was clearly out of the ego's lane:
+    -- neither in it nor beside it within the tolerance of the lane it left
+    select
+        a.*,
+        max(case when not a.same_lane and (a.adjacent_side is null or n.frame is null) then a.frame end) over (
+            partition by a.drive_key, a.ego_key, a.actor_key, a.lane_run order by a.frame
+            rows between unbounded preceding and current row
+        ) as last_out_of_lane_frame
+    from last_in as a
+    left join near_left_lane as n
+        on a.drive_key = n.drive_key and a.ego_key = n.ego_key and a.actor_key = n.actor_key and a.frame = n.frame
+),
+
 checked as (
     select
         a.*,
         a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane
-    from ahead as a
+    from left_lane as a
     inner join drive_inputs as d
         on a.drive_key = d.drive_key
     left join ego_lanes as entry
@@ -60,18 +120,21 @@ conditions as (
         coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
             and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         ego_keeps_lane,
+        coalesce(last_out_of_lane_frame > last_in_lane_frame, last_in_lane_frame is null) as actor_left_ego_lane,
         actor_kind,
         lon_gap_m,
         adjacent_side,
         time_headway_s,
         ego_lane_now_id as ego_lane_id,
         actor_lane_id,
-        entry_frame
+        entry_frame,
+        last_in_lane_frame
     from checked
 )
 
 -- holds is exactly the AND of the conditions above (logiq-sql lint checks it against the scenario file)
 select
     *,
-    actor_kind_ok and actor_ahead and actor_beside and headway_in_range and ego_keeps_lane as holds
+    actor_kind_ok and actor_ahead and actor_beside and headway_in_range and ego_keeps_lane and actor_left_ego_lane
+        as holds
 from conditions

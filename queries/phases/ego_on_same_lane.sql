@@ -14,7 +14,7 @@
 --                        car that has turned off is no longer ahead in the lane of an ego going on (tracks are
 --                        recorded, so the ego's own path is known); on the turn's lane it is still partly ahead
 --   actor_nearest        it is the nearest road user (any kind) ahead of the ego in that lane: the one the ego
---                        follows. One off to the side of the ego (lat_gap_m > 0) and heading more than 45 degrees
+--                        follows. One off to the side of the ego (lat_gap_m > 0) and heading more than 30 degrees
 --                        off the ego's heading (round a bend) is not when a road user straight in front of the ego
 --                        (lat_gap_m = 0), in its lane or the lane beside, is nearer: in a double left turn the car
 --                        right in front of the ego may be labelled the next lane while one 10-15 m to the side,
@@ -106,9 +106,9 @@ ranked as (
     select
         a.*,
         n.actor_key is not null
-            -- one off to the side of the ego and heading more across the ego's way than along it (round a bend)
-            -- is behind whoever is nearer and straight in front of the ego
-            and (a.lat_gap_m = 0 or abs(a.rel_heading_rad) <= pi() / 4 or l.lon_gap_m is null
+            -- one off to the side of the ego and turned by a bend (more than 30 degrees: an ego changing lanes
+            -- turns by far less) is behind whoever is nearer and straight in front of the ego
+            and (a.lat_gap_m = 0 or abs(a.rel_heading_rad) <= pi() / 6 or l.lon_gap_m is null
                 or l.lon_gap_m >= a.lon_gap_m) as is_nearest
     from ahead as a
     left join nearest as n
