@@ -16,14 +16,16 @@
 with
 
 keyed as (
-    -- each match with the integer keys of its drive, ego and actor
+    -- each match with the integer keys of its drive, ego and actor, and a key of its own (match_key) for the joins
+    -- and groups below
     select
         m.match_id,
         e.drive_key,
         e.ego_key,
         a.actor_key,
         m.start_frame,
-        m.end_frame
+        m.end_frame,
+        row_number() over (order by m.match_id) as match_key
     from scenario_matches as m
     inner join egos as e
         on m.drive_id = e.drive_id and m.ego_id = e.ego_id
@@ -34,15 +36,15 @@ keyed as (
 ),
 
 roles as (
-    select match_id, drive_key, ego_key as actor_key, start_frame, end_frame, 1 as is_ego from keyed
+    select match_key, drive_key, ego_key as actor_key, start_frame, end_frame, 1 as is_ego from keyed
     union all
-    select match_id, drive_key, actor_key, start_frame, end_frame, 0 as is_ego from keyed
+    select match_key, drive_key, actor_key, start_frame, end_frame, 0 as is_ego from keyed
 ),
 
 tracked as (
     -- the ego's and the actor's track rows in the interval, side by side per frame
     select
-        r.match_id,
+        r.match_key,
         t.frame,
         max(r.is_ego) = 1 as ego_tracked,
         min(r.is_ego) = 0 as actor_tracked,
@@ -55,12 +57,12 @@ tracked as (
     inner join tracks as t
         on r.drive_key = t.drive_key and r.actor_key = t.actor_key
         and t.frame between r.start_frame and r.end_frame
-    group by r.match_id, t.frame
+    group by r.match_key, t.frame
 ),
 
 related as (
     select
-        k.match_id,
+        k.match_key,
         p.frame,
         p.lon_gap_m,
         p.adjacent_side,
@@ -73,7 +75,7 @@ related as (
 )
 
 select
-    t.match_id,
+    k.match_id,
     t.frame,
     t.ego_tracked,
     t.actor_tracked,
@@ -82,11 +84,13 @@ select
     t.actor_kind,
     t.actor_speed_mps,
     t.actor_accel_mps2,
-    r.match_id is not null as related,
+    r.match_key is not null as related,
     r.lon_gap_m,
     r.adjacent_side,
     r.ttc_s,
     r.mttc_s
 from tracked as t
+inner join keyed as k
+    on t.match_key = k.match_key
 left join related as r
-    on t.match_id = r.match_id and t.frame = r.frame
+    on t.match_key = r.match_key and t.frame = r.frame
