@@ -228,7 +228,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from logiq_sql.engines.base import INPUT_TABLES
     from logiq_sql.engines.spark_engine import spark_text
     from logiq_sql.outputs import replay
-    from logiq_sql.spec.plan import parse_ego, run_values, scenario_steps
+    from logiq_sql.spec.plan import MATCH_ROWS_STEP, parse_ego, run_values, scenario_steps
     from logiq_sql.spec.scenario import list_scenarios
 
     tables = {t.name: t.polars_schema for t in INPUT_TABLES} | _side_tables()
@@ -239,7 +239,8 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     for s in list_scenarios():
         values = run_values(s, parse_ego("auto"), 200.0)
         runs += [(t, rel, values) for t, rel in scenario_steps(s)]
-        runs += [("scenario_matches", "match/identify.sql", values), *[("_kpi", rel, values) for rel in s.kpi_queries]]
+        runs += [("scenario_matches", "match/identify.sql", values), (*MATCH_ROWS_STEP, values),
+                 *[("_kpi", rel, values) for rel in s.kpi_queries]]
         if s.sample_queries:  # in the runner's order: the sample events, then each sample query over them
             runs += [("match_samples", "match/samples.sql", values),
                      *[("_sample", rel, values) for rel in s.sample_queries]]

@@ -19,6 +19,7 @@ from logiq_sql.spec.plan import (
     ALL_KINDS_CSV,
     IDENTIFY_QUERY,
     JUNCTION_STEPS,
+    MATCH_ROWS_STEP,
     RELATION_STEPS,
     SAMPLES_QUERY,
     phase_steps,
@@ -29,7 +30,7 @@ from logiq_sql.storage.store import ScenarioOutput
 from logiq_sql.storage.tables import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 
 # what run_scenario writes besides the phase steps' tables: a query reading one of them depends on the scenario
-SCENARIO_TABLES = ("scenario_matches", "_kpi", "match_samples", "_sample")
+SCENARIO_TABLES = ("scenario_matches", MATCH_ROWS_STEP[0], "_kpi", "match_samples", "_sample")
 
 
 def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scenario],
@@ -109,6 +110,7 @@ def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> Scen
         matches = engine.frame("scenario_matches")
     metrics = matches.select("match_id")
     with stage("kpis"):
+        engine.materialise(*MATCH_ROWS_STEP, values)
         for rel in s.kpi_queries:
             engine.materialise("_kpi", rel, values)
             metrics = metrics.join(engine.frame("_kpi"), on="match_id", how="left")

@@ -34,7 +34,7 @@ from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
 from logiq_sql.matching.runner import coverage_buckets, is_phase
 from logiq_sql.spec.contract import sample_columns
-from logiq_sql.spec.plan import IDENTIFY_QUERY, SAMPLES_QUERY, phase_steps
+from logiq_sql.spec.plan import IDENTIFY_QUERY, MATCH_ROWS_STEP, SAMPLES_QUERY, phase_steps
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import tables
 from logiq_sql.storage.store import PERSISTED, STORED_ALWAYS
@@ -115,6 +115,7 @@ class SparkResults:
         matches = spark.table("scenario_matches")
         with stage("kpis"):
             metrics = matches.select("match_id")
+            engine.materialise(*MATCH_ROWS_STEP, values)
             for i, rel in enumerate(s.kpi_queries):
                 engine.materialise(f"_kpi_{i}", rel, values)
                 metrics = metrics.join(spark.table(f"_kpi_{i}"), "match_id", "left")

@@ -43,6 +43,8 @@ MATCH_STEPS = (
 )
 IDENTIFY_QUERY = "match/identify.sql"
 SAMPLES_QUERY = "match/samples.sql"
+# the rows of tracks and relations inside the matches' intervals, which the KPI and sample queries read
+MATCH_ROWS_STEP = ("match_rows", "kpis/match_rows.sql")
 
 
 def parse_ego(ego: str, kinds: str | None = None) -> dict[str, object]:
@@ -179,5 +181,5 @@ def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
 
 def scenario_queries(s: Scenario) -> list[str]:
     """Every query file a run of ``s`` executes, in order."""
-    return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, SAMPLES_QUERY, *s.kpi_queries,
-            *s.sample_queries]
+    return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, MATCH_ROWS_STEP[1], SAMPLES_QUERY,
+            *s.kpi_queries, *s.sample_queries]

@@ -2,7 +2,7 @@
 -- grain: one row per (match_id, sample): the cut-in coverage values at each sampling event of the match
 --        (match/samples.sql); the scenario samples them at actor_beside_ahead.end, the last frame before the
 --        actor is in the Ego's lane
--- reads: match_samples, scenario_matches, relations, tracks
+-- reads: match_samples, match_rows (kpis/match_rows.sql)
 -- params: $kph_per_mps (unit constant)
 --
 --   cut_in_side_relative_to_ego   the side of the Ego's lane the actor comes from (left/right: adjacent_side)
@@ -13,11 +13,7 @@ select
     s.sample,
     r.adjacent_side as cut_in_side_relative_to_ego,
     r.lon_gap_m as cut_in_distance_m,
-    a.speed_mps * $kph_per_mps as cut_in_speed_kph
+    r.actor_speed_mps * $kph_per_mps as cut_in_speed_kph
 from match_samples as s
-inner join scenario_matches as m
-    on s.match_id = m.match_id
-left join relations as r
-    on m.drive_id = r.drive_id and m.ego_id = r.ego_id and m.actor_id = r.actor_id and s.frame = r.frame
-left join tracks as a
-    on m.drive_id = a.drive_id and m.actor_id = a.actor_id and s.frame = a.frame
+left join match_rows as r
+    on s.match_id = r.match_id and s.frame = r.frame

@@ -1,16 +1,14 @@
 -- coverage: object_at_sample
 -- grain: one row per (match_id, sample): the object's kind at each sampling event of the match
 --        (match/samples.sql); each coverage item keeps the row of the event its `sample` names
--- reads: match_samples, scenario_matches, tracks
+-- reads: match_samples, match_rows (kpis/match_rows.sql)
 -- params: none
 --
 --   object_kind   the object's kind at the sample's frame
 select
     s.match_id,
     s.sample,
-    a.kind as object_kind
+    r.actor_kind as object_kind
 from match_samples as s
-inner join scenario_matches as m
-    on s.match_id = m.match_id
-left join tracks as a
-    on m.drive_id = a.drive_id and m.actor_id = a.actor_id and s.frame = a.frame
+left join match_rows as r
+    on s.match_id = r.match_id and s.frame = r.frame

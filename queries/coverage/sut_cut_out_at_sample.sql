@@ -1,7 +1,7 @@
 -- coverage: sut_cut_out_at_sample
 -- grain: one row per (match_id, sample): the lane-change coverage values at each sampling event of the match
 --        (match/samples.sql); sut_cut_out samples them at ego_side_of_npc.start, the frame of the Ego's lane change
--- reads: match_samples, scenario_matches, relations, tracks
+-- reads: match_samples, match_rows (kpis/match_rows.sql)
 -- params: $kph_per_mps (unit constant)
 --
 --   speed_at_change_lane_kph        the vehicle_actor's speed
@@ -12,13 +12,9 @@
 select
     s.match_id,
     s.sample,
-    a.speed_mps * $kph_per_mps as speed_at_change_lane_kph,
+    r.actor_speed_mps * $kph_per_mps as speed_at_change_lane_kph,
     r.lon_gap_m as distance_at_change_lane_m,
     r.adjacent_side as side_of_npc_relative_to_ego_at_lane_change
 from match_samples as s
-inner join scenario_matches as m
-    on s.match_id = m.match_id
-left join relations as r
-    on m.drive_id = r.drive_id and m.ego_id = r.ego_id and m.actor_id = r.actor_id and s.frame = r.frame
-left join tracks as a
-    on m.drive_id = a.drive_id and m.actor_id = a.actor_id and s.frame = a.frame
+left join match_rows as r
+    on s.match_id = r.match_id and s.frame = r.frame

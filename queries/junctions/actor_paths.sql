@@ -3,6 +3,8 @@
 -- reads: egos, relations, tracks
 -- params: none
 --
+-- Joined and windowed on the integer keys (drive_key, actor_key), which each row carries beside the ids.
+--
 -- The actors are those of relations, so of the kinds the run's scenarios can use (relations.sql): every kind in a
 -- run of a scenario that leaves relation_kinds unset, as the left turn does; a junction scenario that declared
 -- relation_kinds would get passages for those kinds only.
@@ -15,15 +17,17 @@
 with
 
 actors as (
-    select drive_id, ego_id as actor_id from egos
+    select drive_key, ego_key as actor_key from egos
     union
-    select distinct drive_id, actor_id from relations
+    select distinct drive_key, actor_key from relations
 ),
 
 steps as (
     select
         t.drive_id,
         t.actor_id,
+        t.drive_key,
+        t.actor_key,
         t.frame,
         t.t_s,
         t.heading_rad,
@@ -32,8 +36,8 @@ steps as (
             as step_m
     from tracks as t
     inner join actors as a
-        on t.drive_id = a.drive_id and t.actor_id = a.actor_id
-    window w as (partition by t.drive_id, t.actor_id order by t.frame)
+        on t.drive_key = a.drive_key and t.actor_key = a.actor_key
+    window w as (partition by t.drive_key, t.actor_key order by t.frame)
 ),
 
 path as (
@@ -45,10 +49,12 @@ path as (
         heading_rad,
         length_m,
         coalesce(sum(step_m) over (
-            partition by drive_id, actor_id order by frame rows between unbounded preceding and current row
+            partition by drive_key, actor_key order by frame rows between unbounded preceding and current row
         ), 0.0) as s_m,
-        min(frame) over (partition by drive_id, actor_id) as first_frame,
-        max(frame) over (partition by drive_id, actor_id) as last_frame
+        min(frame) over (partition by drive_key, actor_key) as first_frame,
+        max(frame) over (partition by drive_key, actor_key) as last_frame,
+        drive_key,
+        actor_key
     from steps
 )
 

@@ -3,16 +3,21 @@
 --        near or in the same junction at the same time, whose paths through it may cross
 -- reads: relations, junction_frames
 -- params: none
+--
+-- Joined on the integer keys (drive_key, ego_key, actor_key), which each row carries beside the ids.
 select distinct
     r.drive_id,
     r.ego_id,
     e.passage as ego_passage,
     r.actor_id,
     a.passage as actor_passage,
-    e.junction_id
+    e.junction_id,
+    r.drive_key,
+    r.ego_key,
+    r.actor_key
 from relations as r
 inner join junction_frames as e
-    on r.drive_id = e.drive_id and r.ego_id = e.actor_id and r.frame = e.frame
+    on r.drive_key = e.drive_key and r.ego_key = e.actor_key and r.frame = e.frame
 inner join junction_frames as a
-    on r.drive_id = a.drive_id and r.actor_id = a.actor_id and r.frame = a.frame
+    on r.drive_key = a.drive_key and r.actor_key = a.actor_key and r.frame = a.frame
     and e.junction_id = a.junction_id

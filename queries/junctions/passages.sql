@@ -3,7 +3,8 @@
 -- reads: actor_paths, track_lanes, actor_lanes, lanes, lane_successors, drive_inputs
 -- params: none
 --
--- Path positions s_m come from actor_paths.
+-- Path positions s_m come from actor_paths. Joined, windowed and grouped on the integer keys (drive_key, actor_key),
+-- which each row carries beside the ids.
 --   inside            the centre lies in a lane of the junction (track_lanes distance 0); of two junctions
 --                     whose lanes overlap there, the smaller id
 --   passage           consecutive inside frames of one junction; a new stay that starts less than 2 m of path
@@ -33,24 +34,24 @@ path as (
         lag(heading_rad) over w as heading_before_rad,
         lead(heading_rad) over w as heading_after_rad
     from actor_paths
-    window w as (partition by drive_id, actor_id order by frame)
+    window w as (partition by drive_key, actor_key order by frame)
 ),
 
 inside as (
     select
-        tl.drive_id,
-        tl.actor_id,
+        tl.drive_key,
+        tl.actor_key,
         tl.frame,
         min(l.junction_id) as junction_id
     from track_lanes as tl
-    inner join (select distinct drive_id, actor_id from actor_paths) as a
-        on tl.drive_id = a.drive_id and tl.actor_id = a.actor_id
+    inner join (select distinct drive_key, actor_key from actor_paths) as a
+        on tl.drive_key = a.drive_key and tl.actor_key = a.actor_key
     inner join drive_inputs as d
-        on tl.drive_id = d.drive_id
+        on tl.drive_key = d.drive_key
     inner join lanes as l
         on d.map_id = l.map_id and tl.lane_id = l.lane_id
     where tl.dist_m = 0 and l.junction_id is not null
-    group by tl.drive_id, tl.actor_id, tl.frame
+    group by tl.drive_key, tl.actor_key, tl.frame
 ),
 
 stays as (
@@ -58,16 +59,18 @@ stays as (
     select
         p.*,
         i.junction_id,
-        p.frame - row_number() over (partition by p.drive_id, p.actor_id, i.junction_id order by p.frame) as island
+        p.frame - row_number() over (partition by p.drive_key, p.actor_key, i.junction_id order by p.frame) as island
     from path as p
     inner join inside as i
-        on p.drive_id = i.drive_id and p.actor_id = i.actor_id and p.frame = i.frame
+        on p.drive_key = i.drive_key and p.actor_key = i.actor_key and p.frame = i.frame
 ),
 
 stay_bounds as (
     select
-        drive_id,
-        actor_id,
+        drive_key,
+        actor_key,
+        min(drive_id) as drive_id,
+        min(actor_id) as actor_id,
         junction_id,
         min(frame) as entry_frame,
         max(frame) as exit_frame,
@@ -76,7 +79,7 @@ stay_bounds as (
         min(first_frame) as first_frame,
         min(last_frame) as last_frame
     from stays
-    group by drive_id, actor_id, junction_id, island
+    group by drive_key, actor_key, junction_id, island
 ),
 
 merged as (
@@ -84,7 +87,7 @@ merged as (
         *,
         -- bigint on every engine (DuckDB sums integers into a 128-bit integer, Spark into bigint)
         cast(sum(starts_new) over (
-            partition by drive_id, actor_id order by entry_frame rows between unbounded preceding and current row
+            partition by drive_key, actor_key order by entry_frame rows between unbounded preceding and current row
         ) as bigint) as passage
     from (
         select
@@ -94,14 +97,16 @@ merged as (
                 else 1
             end as starts_new
         from stay_bounds
-        window w as (partition by drive_id, actor_id order by entry_frame)
+        window w as (partition by drive_key, actor_key order by entry_frame)
     ) as flagged
 ),
 
 passages as (
     select
-        drive_id,
-        actor_id,
+        drive_key,
+        actor_key,
+        min(drive_id) as drive_id,
+        min(actor_id) as actor_id,
         passage,
         min(junction_id) as junction_id,
         min(entry_frame) as entry_frame,
@@ -111,25 +116,25 @@ passages as (
         min(entry_frame) > min(first_frame) as entry_observed,
         max(exit_frame) < min(last_frame) as exit_observed
     from merged
-    group by drive_id, actor_id, passage
+    group by drive_key, actor_key, passage
 ),
 
 outside_lanes as (
     -- frames near a passage at which the actor is in a lane that is not in that junction
     select
-        p.drive_id,
-        p.actor_id,
+        p.drive_key,
+        p.actor_key,
         p.passage,
         al.frame,
         al.lane_id,
         al.frame < p.entry_frame as before
     from passages as p
     inner join actor_lanes as al
-        on p.drive_id = al.drive_id and p.actor_id = al.actor_id
+        on p.drive_key = al.drive_key and p.actor_key = al.actor_key
         and (al.frame between p.entry_frame - 50 and p.entry_frame - 1
             or al.frame between p.exit_frame + 1 and p.exit_frame + 50)
     inner join drive_inputs as d
-        on p.drive_id = d.drive_id
+        on p.drive_key = d.drive_key
     inner join lanes as l
         on d.map_id = l.map_id and al.lane_id = l.lane_id
     where l.junction_id is null or l.junction_id <> p.junction_id
@@ -137,13 +142,13 @@ outside_lanes as (
 
 legs as (
     select
-        drive_id,
-        actor_id,
+        drive_key,
+        actor_key,
         passage,
         max(case when before then frame end) as entry_lane_frame,
         min(case when not before then frame end) as exit_lane_frame
     from outside_lanes
-    group by drive_id, actor_id, passage
+    group by drive_key, actor_key, passage
 ),
 
 with_legs as (
@@ -156,26 +161,26 @@ with_legs as (
         xh.heading_after_rad as exit_heading_rad
     from passages as p
     inner join drive_inputs as d
-        on p.drive_id = d.drive_id
+        on p.drive_key = d.drive_key
     left join legs as g
-        on p.drive_id = g.drive_id and p.actor_id = g.actor_id and p.passage = g.passage
+        on p.drive_key = g.drive_key and p.actor_key = g.actor_key and p.passage = g.passage
     left join outside_lanes as el
-        on p.drive_id = el.drive_id and p.actor_id = el.actor_id and p.passage = el.passage
+        on p.drive_key = el.drive_key and p.actor_key = el.actor_key and p.passage = el.passage
         and el.frame = g.entry_lane_frame
     left join outside_lanes as xl
-        on p.drive_id = xl.drive_id and p.actor_id = xl.actor_id and p.passage = xl.passage
+        on p.drive_key = xl.drive_key and p.actor_key = xl.actor_key and p.passage = xl.passage
         and xl.frame = g.exit_lane_frame
     left join path as eh
-        on p.drive_id = eh.drive_id and p.actor_id = eh.actor_id and eh.frame = p.entry_frame
+        on p.drive_key = eh.drive_key and p.actor_key = eh.actor_key and eh.frame = p.entry_frame
     left join path as xh
-        on p.drive_id = xh.drive_id and p.actor_id = xh.actor_id and xh.frame = p.exit_frame
+        on p.drive_key = xh.drive_key and p.actor_key = xh.actor_key and xh.frame = p.exit_frame
 ),
 
 map_turns as (
     -- entry lane -> junction lane (the map's turn) -> [one more junction lane ->] exit lane
     select
-        w.drive_id,
-        w.actor_id,
+        w.drive_key,
+        w.actor_key,
         w.passage,
         case when min(first_hop.turn) = max(first_hop.turn) then min(first_hop.turn) end as turn_from_map
     from with_legs as w
@@ -187,7 +192,7 @@ map_turns as (
         on second_hop.map_id = third_hop.map_id and second_hop.successor_id = third_hop.lane_id
     where first_hop.turn is not null
         and (second_hop.successor_id = w.exit_lane_id or third_hop.successor_id = w.exit_lane_id)
-    group by w.drive_id, w.actor_id, w.passage
+    group by w.drive_key, w.actor_key, w.passage
 ),
 
 turns as (
@@ -206,7 +211,7 @@ turns as (
         end as turn_from_heading
     from with_legs as w
     left join map_turns as m
-        on w.drive_id = m.drive_id and w.actor_id = m.actor_id and w.passage = m.passage
+        on w.drive_key = m.drive_key and w.actor_key = m.actor_key and w.passage = m.passage
 )
 
 select
@@ -227,5 +232,7 @@ select
     exit_heading_rad,
     turn_from_map,
     turn_from_heading,
-    coalesce(turn_from_map, turn_from_heading) as turn
+    coalesce(turn_from_map, turn_from_heading) as turn,
+    drive_key,
+    actor_key
 from turns

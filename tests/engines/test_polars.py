@@ -22,7 +22,14 @@ from logiq_sql.engines.duckdb_engine import DuckEngine
 from logiq_sql.engines.polars_engine import POLARS_UNSUPPORTED, PolarsEngine, override, polars_blocker
 from logiq_sql.matching.encroachment import encroachments
 from logiq_sql.matching.match import select_run_drives
-from logiq_sql.spec.plan import SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
+from logiq_sql.spec.plan import (
+    MATCH_ROWS_STEP,
+    SAMPLES_QUERY,
+    parse_ego,
+    resolve_scenarios,
+    run_values,
+    scenario_steps,
+)
 from logiq_sql.storage import db
 
 DATA = Path(__file__).parents[1] / "data"
@@ -71,7 +78,7 @@ def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str],
         polars.register("run_drives", run_drives)
         for s in resolve_scenarios(scenarios, overrides):
             values = run_values(s, parse_ego(ego), 200.0)
-            steps = [*scenario_steps(s), ("scenario_matches", "match/identify.sql"),
+            steps = [*scenario_steps(s), ("scenario_matches", "match/identify.sql"), MATCH_ROWS_STEP,
                      *[("_kpi", rel) for rel in s.kpi_queries], ("match_samples", SAMPLES_QUERY),
                      *[("_sample", rel) for rel in s.sample_queries]]
             for table, rel in steps:
