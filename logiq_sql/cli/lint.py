@@ -91,18 +91,15 @@ def lint_sql(text: str, where: str, polars_override: bool = False, polars_refuse
     return problems
 
 
-# "$phase_1_name .. $phase_4_name": the four phase slots, written as a range
-_SLOT_RANGE = re.compile(r"(\$?)(\w*?)1(\w*) \.\.\s+\$?\2(\d)\3")
 
 
 def _named(field: str, pattern: str) -> set[str]:
-    """The names a header field lists: parenthesised remarks dropped, slot ranges expanded."""
+    """The names a header field lists, parenthesised remarks dropped."""
     while True:
         shorter = re.sub(r"\([^()]*\)", "", field)
         if shorter == field:
             break
         field = shorter
-    field = _SLOT_RANGE.sub(lambda m: ", ".join(f"{m[1]}{m[2]}{i}{m[3]}" for i in range(1, int(m[4]) + 1)), field)
     return set(re.findall(pattern, field))
 
 

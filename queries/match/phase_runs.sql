@@ -1,8 +1,7 @@
 -- match: phase_runs
 -- grain: one row per (phase_index, drive_id, ego_id, actor_id, segment, run): a stretch of frames in which a
 --        phase holds, gaps of at most max_gap bridged, flagged as jitter when it held at fewer than half its frames
--- reads: phase_1 .. phase_4 (the scenario's phase queries, the phase contract of docs/scenarios.md; a scenario
---        with fewer phases reads match/no_phase.sql for the rest), drive_inputs
+-- reads: phase_frames (the frames at which each phase of the scenario holds, match/phase_frames.sql), drive_inputs
 -- params: $max_gap_s
 --
 -- A run is a maximal stretch of frames of one (ego, actor) pair and one segment in which the phase holds, where
@@ -20,16 +19,6 @@
 -- Runs never span two segments (e.g. two lane runs of the ego).
 with
 
-holding as (
-    select distinct 1 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_1 where holds
-    union all
-    select distinct 2 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_2 where holds
-    union all
-    select distinct 3 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_3 where holds
-    union all
-    select distinct 4 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_4 where holds
-),
-
 stepped as (
     select
         h.*,
@@ -37,7 +26,7 @@ stepped as (
         h.frame - lag(h.frame) over (
             partition by h.phase_index, h.drive_id, h.ego_id, h.actor_id, h.segment order by h.frame
         ) as step
-    from holding as h
+    from phase_frames as h
     inner join drive_inputs as d
         on h.drive_id = d.drive_id
 ),

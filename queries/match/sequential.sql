@@ -1,12 +1,11 @@
 -- match: sequential
--- grain: one row per match of a scenario: its phases (up to four) one after the other, each phase's interval
---        (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
--- reads: chain (match/chain.sql over phase_runs), tracks, drive_inputs
--- params: $phase_count, $phase_1_min_duration_s .. $phase_4_min_duration_s, $phase_1_max_duration_s ..
---         $phase_4_max_duration_s (the durations the scenario's phases name; no minimum: 0, no maximum: NULL),
---         $max_gap_s
+-- grain: one row per (match, phase) of a scenario: the match interval [start, end] and the phase's interval in it
+--        (phase_index; phase_start_*, phase_end_*), one row for each of the scenario's phases
+-- reads: chain (match/chain.sql over phase_runs), scenario_phases (the phases' duration limits), tracks,
+--        drive_inputs
+-- params: $phase_count, $max_gap_s
 --
--- Every scenario, one phase or four, is matched by this query (docs/semantics.md, "Phases and matches"):
+-- Every scenario, whatever its number of phases, is matched by this query (docs/semantics.md, "Phases and matches"):
 --   1. A match is a complete chain (chain.sql): phase k lasts from its transition frame to the frame before
 --      the next phase's transition; the last phase to the end of its run. Of several chains from one start,
 --      the one with the earliest transitions is kept.
@@ -66,20 +65,6 @@ phases as (
     from steps as s
 ),
 
-limits as (
-    select 1 as phase_index, cast($phase_1_min_duration_s as double) as min_s,
-        cast($phase_1_max_duration_s as double) as max_s
-    union all
-    select 2 as phase_index, cast($phase_2_min_duration_s as double) as min_s,
-        cast($phase_2_max_duration_s as double) as max_s
-    union all
-    select 3 as phase_index, cast($phase_3_min_duration_s as double) as min_s,
-        cast($phase_3_max_duration_s as double) as max_s
-    union all
-    select 4 as phase_index, cast($phase_4_min_duration_s as double) as min_s,
-        cast($phase_4_max_duration_s as double) as max_s
-),
-
 spans as (
     -- per chain: its frames, where phase 1 ends and where the last phase begins, and the limits that trim them
     select
@@ -94,7 +79,7 @@ spans as (
         max(case when p.phase_index = 1 then l.max_s end) as first_max_s,
         max(case when p.phase_index = $phase_count then l.max_s end) as last_max_s
     from phases as p
-    inner join limits as l
+    inner join scenario_phases as l
         on p.phase_index = l.phase_index
     group by p.drive_id, p.ego_id, p.actor_id, p.chain_start_frame
 ),
@@ -184,7 +169,7 @@ clipped as (
     inner join kept as k
         on p.drive_id = k.drive_id and p.ego_id = k.ego_id and p.actor_id = k.actor_id
         and p.chain_start_frame = k.chain_start_frame
-    inner join limits as l
+    inner join scenario_phases as l
         on p.phase_index = l.phase_index
 ),
 
@@ -204,39 +189,22 @@ timed as (
 ),
 
 matched as (
+    -- per piece of a chain: whether every phase fits its durations, and the match interval
     select
-        drive_id,
-        ego_id,
-        actor_id,
-        chain_start_frame,
-        piece,
+        *,
         min(case
             when phase_end_s - phase_start_s >= coalesce(min_s, 0) - 1e-6
                 and (max_s is null or phase_end_s - phase_start_s <= max_s + 1e-6) then 1
             else 0
-        end) as durations_ok,
-        min(phase_start_frame) as start_frame,
-        max(phase_end_frame) as end_frame,
-        min(phase_start_s) as start_s,
-        max(phase_end_s) as end_s,
-        max(case when phase_index = 1 then phase_start_frame end) as p1_start_frame,
-        max(case when phase_index = 1 then phase_end_frame end) as p1_end_frame,
-        max(case when phase_index = 1 then phase_start_s end) as p1_start_s,
-        max(case when phase_index = 1 then phase_end_s end) as p1_end_s,
-        max(case when phase_index = 2 then phase_start_frame end) as p2_start_frame,
-        max(case when phase_index = 2 then phase_end_frame end) as p2_end_frame,
-        max(case when phase_index = 2 then phase_start_s end) as p2_start_s,
-        max(case when phase_index = 2 then phase_end_s end) as p2_end_s,
-        max(case when phase_index = 3 then phase_start_frame end) as p3_start_frame,
-        max(case when phase_index = 3 then phase_end_frame end) as p3_end_frame,
-        max(case when phase_index = 3 then phase_start_s end) as p3_start_s,
-        max(case when phase_index = 3 then phase_end_s end) as p3_end_s,
-        max(case when phase_index = 4 then phase_start_frame end) as p4_start_frame,
-        max(case when phase_index = 4 then phase_end_frame end) as p4_end_frame,
-        max(case when phase_index = 4 then phase_start_s end) as p4_start_s,
-        max(case when phase_index = 4 then phase_end_s end) as p4_end_s
+        end) over (partition by drive_id, ego_id, actor_id, chain_start_frame, piece) as durations_ok,
+        min(phase_start_frame) over (partition by drive_id, ego_id, actor_id, chain_start_frame, piece)
+            as start_frame,
+        max(phase_end_frame) over (partition by drive_id, ego_id, actor_id, chain_start_frame, piece) as end_frame,
+        min(phase_start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame, piece) as start_s,
+        max(phase_end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame, piece) as end_s,
+        max(phase_end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame)
+            - min(phase_start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame) as chain_s
     from timed
-    group by drive_id, ego_id, actor_id, chain_start_frame, piece
 )
 
 select
@@ -247,28 +215,11 @@ select
     end_frame,
     start_s,
     end_s,
-    p1_start_frame,
-    p1_end_frame,
-    p1_start_s,
-    p1_end_s,
-    p2_start_frame,
-    p2_end_frame,
-    p2_start_s,
-    p2_end_s,
-    p3_start_frame,
-    p3_end_frame,
-    p3_start_s,
-    p3_end_s,
-    p4_start_frame,
-    p4_end_frame,
-    p4_start_s,
-    p4_end_s
-from (
-    select
-        *,
-        max(end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame)
-            - min(start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame) as chain_s
-    from matched
-) as chains
+    phase_index,
+    phase_start_frame,
+    phase_end_frame,
+    phase_start_s,
+    phase_end_s
+from matched
 where durations_ok = 1
     and chain_s >= $max_gap_s - 1e-6
