@@ -36,7 +36,7 @@ from pathlib import Path
 import polars as pl
 
 from logiq_sql.core.errors import ScenarioError, arg
-from logiq_sql.core.sql import materialise
+from logiq_sql.core.sql import materialise, registered
 from logiq_sql.matching.runner import prepare_relations
 from logiq_sql.spec.plan import (
     DEFAULT_RELATION_RANGE,
@@ -176,6 +176,39 @@ def _failed(phase_index: int, s: Scenario, schema: pl.Schema) -> pl.Expr:
     return pl.concat_list(texts).list.drop_nulls()
 
 
+def _read_steps(con, s: Scenario, values: dict[str, object]):
+    """The scenario's steps on the drive of ``run_drives``, and what explain reads of them: the furthest chain per
+    pair, the bridged runs, the complete chains, phase 1's rows in the unmatched stretches, and per phase the row
+    at the frame it was needed."""
+    prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
+    for table, rel in phase_steps(s):
+        materialise(con, table, rel, values)
+    score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
+    progress = con.sql(_PROGRESS.format(score=score)).pl()
+    bridged = con.sql(_BRIDGED).pl()
+    chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
+    with registered(con, "_stretches", con.sql(_UNMATCHED).pl()):
+        stretch_rows = con.sql("select p.*, u.start_s, u.end_s, u.start_frame, u.end_frame from phase_1 as p "
+                               "join _stretches as u on p.drive_id = u.drive_id and p.ego_id = u.ego_id "
+                               "and p.actor_id = u.actor_id and p.frame between u.start_frame and u.end_frame "
+                               "order by p.frame").pl()
+    stretch_rows = stretch_rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
+    # the row of each phase's table at the frame it was needed (several rows per frame: the first)
+    needed = []
+    for k in range(len(s.phases)):
+        want = progress.filter(pl.col("phases_reached") == k).select("drive_id", "ego_id", "actor_id", "at_frame")
+        # the frame right after phase k stopped holding, else (the drive or the pair ends there) its last frame
+        with registered(con, "_want", want):
+            rows = con.sql(f"select p.*, w.at_frame as wanted_frame from phase_{k + 1} as p join _want as w "
+                           "on p.drive_id = w.drive_id and p.ego_id = w.ego_id and p.actor_id = w.actor_id "
+                           "and p.frame in (w.at_frame, w.at_frame - 1) order by p.frame desc").pl()
+        rows = rows.unique(["ego_id", "actor_id"], keep="first", maintain_order=True)
+        needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("wanted_frame").alias("at_frame"),
+                                  pl.col("frame").alias("shown_frame"), "t_s",
+                                  _failed(k, s, rows.schema).alias("failed")))
+    return progress, bridged, chained, stretch_rows, needed
+
+
 def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: str | None = None,
             overrides: dict[str, str] | None = None, relation_range: str = DEFAULT_RELATION_RANGE,
             scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> Explanation:
@@ -191,37 +224,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         known = [r[0] for r in con.execute("select drive_id from drive_inputs").fetchall()]
         if drive not in known:
             raise ScenarioError(f"explain {arg('drive', drive)}: no such drive in {db_path}.")
-        con.register("run_drives", pl.DataFrame({"drive_id": [drive]}))
         values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
-        prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
-        for table, rel in phase_steps(s):
-            materialise(con, table, rel, values)
-        score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
-        progress = con.sql(_PROGRESS.format(score=score)).pl()
-        bridged = con.sql(_BRIDGED).pl()
-        chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
-        unmatched = con.sql(_UNMATCHED).pl()
-        con.register("_stretches", unmatched)
-        stretch_rows = con.sql("select p.*, u.start_s, u.end_s, u.start_frame, u.end_frame from phase_1 as p "
-                               "join _stretches as u on p.drive_id = u.drive_id and p.ego_id = u.ego_id "
-                               "and p.actor_id = u.actor_id and p.frame between u.start_frame and u.end_frame "
-                               "order by p.frame").pl()
-        con.unregister("_stretches")
-        stretch_rows = stretch_rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
-        # the row of each phase's table at the frame it was needed (several rows per frame: the first)
-        needed = []
-        for k in range(len(s.phases)):
-            want = progress.filter(pl.col("phases_reached") == k).select("drive_id", "ego_id", "actor_id", "at_frame")
-            con.register("_want", want)
-            # the frame right after phase k stopped holding, else (the drive or the pair ends there) its last frame
-            rows = con.sql(f"select p.*, w.at_frame as wanted_frame from phase_{k + 1} as p join _want as w "
-                           "on p.drive_id = w.drive_id and p.ego_id = w.ego_id and p.actor_id = w.actor_id "
-                           "and p.frame in (w.at_frame, w.at_frame - 1) order by p.frame desc").pl()
-            con.unregister("_want")
-            rows = rows.unique(["ego_id", "actor_id"], keep="first", maintain_order=True)
-            needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("wanted_frame").alias("at_frame"),
-                                      pl.col("frame").alias("shown_frame"), "t_s",
-                                      _failed(k, s, rows.schema).alias("failed")))
+        with registered(con, "run_drives", pl.DataFrame({"drive_id": [drive]})):
+            progress, bridged, chained, stretch_rows, needed = _read_steps(con, s, values)
     finally:
         con.close()
     at = pl.concat(needed) if needed else None

@@ -22,7 +22,14 @@ from logiq_sql.engines.duckdb_engine import DuckEngine
 from logiq_sql.engines.polars_engine import POLARS_UNSUPPORTED, PolarsEngine, override, polars_blocker
 from logiq_sql.matching.encroachment import encroachments
 from logiq_sql.matching.match import select_run_drives
-from logiq_sql.spec.plan import MATCH_PHASES_QUERY, SAMPLES_QUERY, parse_ego, resolve_scenarios, run_values, scenario_steps
+from logiq_sql.spec.plan import (
+    MATCH_PHASES_QUERY,
+    SAMPLES_QUERY,
+    parse_ego,
+    resolve_scenarios,
+    run_values,
+    scenario_steps,
+)
 from logiq_sql.storage import db
 
 DATA = Path(__file__).parents[1] / "data"
