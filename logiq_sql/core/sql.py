@@ -42,7 +42,9 @@ def _for_phase(tree: exp.Expression, k: int) -> exp.Expression:
     ``phase_index`` column is k."""
     def renamed(node: exp.Expression) -> exp.Expression:
         if isinstance(node, exp.Table) and node.name == "phase_1":
-            return exp.to_table(f"phase_{k}").as_(node.alias_or_name) if node.alias else exp.to_table(f"phase_{k}")
+            table = node.copy()
+            table.set("this", exp.to_identifier(f"phase_{k}"))
+            return table
         if isinstance(node, exp.Placeholder) and node.name.startswith("phase_1_"):
             return exp.Placeholder(this=f"phase_{k}_" + node.name.removeprefix("phase_1_"))
         if isinstance(node, exp.Alias) and node.alias == "phase_index":

@@ -49,13 +49,21 @@ from logiq_sql.spec.plan import (
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
 from logiq_sql.storage import db
 
+# the match steps' rows with the pair's ids beside its integer keys (they join and group on the keys only)
+_WITH_IDS = """
+create or replace temp view {table}_ids as
+select e.drive_id, e.actor_id as ego_id, a.actor_id, s.*
+from {table} as s
+inner join actor_keys as e on s.drive_key = e.drive_key and s.ego_key = e.actor_key
+inner join actor_keys as a on s.drive_key = a.drive_key and s.actor_key = a.actor_key
+"""
 # per pair: the furthest chain, and the frame at which its next phase was needed
 _PROGRESS = """
 with best as (
     select
         drive_id, ego_id, actor_id, phase_index, run_end_frame,
         row_number() over (partition by drive_id, ego_id, actor_id order by phase_index desc, path_key) as rank
-    from chain
+    from chain_ids
 ),
 pairs as (select distinct drive_id, ego_id, actor_id from phase_1),
 scored as (
@@ -85,14 +93,14 @@ left join scored as s
 _CHAINED = """
 with complete as (
     select drive_id, ego_id, actor_id, min(path_key) as path_key
-    from chain where phase_index = $phase_count group by drive_id, ego_id, actor_id
+    from chain_ids where phase_index = $phase_count group by drive_id, ego_id, actor_id
 ),
 steps as (
     select c.drive_id, c.ego_id, c.actor_id, c.phase_index, c.phase_start_frame,
         coalesce(lead(c.phase_start_frame) over (
             partition by c.drive_id, c.ego_id, c.actor_id order by c.phase_index) - 1, c.run_end_frame)
             as phase_end_frame
-    from chain as c
+    from chain_ids as c
     inner join complete as k
         on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
         and starts_with(k.path_key, c.path_key)
@@ -124,7 +132,7 @@ from stretches group by drive_id, ego_id, actor_id, stretch
 """
 _BRIDGED = """
 select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames, jitter
-from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
+from phase_runs_ids where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
 """
 
 
@@ -183,6 +191,8 @@ def _read_steps(con, s: Scenario, values: dict[str, object]):
     prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
     for table, rel in phase_steps(s):
         materialise(con, table, rel, values)
+    for table in ("chain", "phase_runs"):
+        con.execute(_WITH_IDS.format(table=table))
     score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
     progress = con.sql(_PROGRESS.format(score=score)).pl()
     bridged = con.sql(_BRIDGED).pl()

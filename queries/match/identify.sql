@@ -14,6 +14,9 @@ select
     m.start_frame,
     m.end_frame,
     m.start_s,
-    m.end_s
+    m.end_s,
+    m.drive_key,
+    m.ego_key,
+    m.actor_key
 from scenario_match as m
 where m.phase_index = 1

@@ -13,7 +13,7 @@ select
     p.phase_end_s as end_s
 from scenario_matches as m
 inner join scenario_match as p
-    on m.drive_id = p.drive_id and m.ego_id = p.ego_id and m.actor_id = p.actor_id
+    on m.drive_key = p.drive_key and m.ego_key = p.ego_key and m.actor_key = p.actor_key
     and m.start_frame = p.start_frame
 inner join scenario_phases as n
     on p.phase_index = n.phase_index
