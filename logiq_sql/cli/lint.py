@@ -221,7 +221,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from pyspark.sql import types as T
 
     from logiq_sql.core.schema import spark_type
-    from logiq_sql.core.sql import bind
+    from logiq_sql.core.sql import PER_PHASE, bind
     from logiq_sql.engines.base import INPUT_TABLES
     from logiq_sql.engines.spark_engine import spark_text
     from logiq_sql.outputs import replay
@@ -236,7 +236,9 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     for s in list_scenarios():
         values = run_values(s, parse_ego("auto"), 200.0)
         runs += [(t, rel, values) for t, rel in scenario_steps(s)]
-        runs += [("scenario_matches", "match/identify.sql", values), *[("_kpi", rel, values) for rel in s.kpi_queries]]
+        runs += [("scenario_matches", "match/identify.sql", values),
+                 ("scenario_match_phases", "match/match_phases.sql", values),
+                 *[("_kpi", rel, values) for rel in s.kpi_queries]]
         if s.sample_queries:  # in the runner's order: the sample events, then each sample query over them
             runs += [("match_samples", "match/samples.sql", values),
                      *[("_sample", rel, values) for rel in s.sample_queries]]
@@ -246,7 +248,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     # not keep (the file's header)
     problems, seen = [], {"staging/tracks.sql"}
     for table, rel, values in runs:
-        seen.add(rel)
+        seen.add(rel.split(PER_PHASE)[0])  # a file run for each phase (sql.per_phase) is that file
         problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
     root = root or data_dir("queries")
     for path in portable_files(root):  # overrides run on their engine only (tests/engines/test_polars.py)
