@@ -91,8 +91,6 @@ def lint_sql(text: str, where: str, polars_override: bool = False, polars_refuse
     return problems
 
 
-
-
 def _named(field: str, pattern: str) -> set[str]:
     """The names a header field lists, parenthesised remarks dropped."""
     while True:
