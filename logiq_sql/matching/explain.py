@@ -248,8 +248,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
                                 f"for this actor and ego in drive {drive} (too far apart, or not within "
                                 f"{arg('relation_range', relation_range)}).")
     names = [p.name for p in s.phases]
-    slots = list(range(1, len(names) + 1))  # phase_index of each phase
-    phase_name = pl.col("phase_index").replace_strict(slots, names, default="?")
+    indices = list(range(1, len(names) + 1))  # phase_index of each phase
+    phase_name = pl.col("phase_index").replace_strict(indices, names, default="?")
     bridged_text = bridged.select(
         "ego_id", "actor_id",
         pl.format("{} frames {}-{} ({} s to {} s): {} frame(s) missing or not holding, {}",
@@ -268,7 +268,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         pl.format("{} {} s to {} s ({} s; {})",
                   phase_name,
                   pl.col("start_s").round(2), pl.col("end_s").round(2), (pl.col("end_s") - pl.col("start_s")).round(2),
-                  pl.col("phase_index").replace_strict(slots, limits, default="?")
+                  pl.col("phase_index").replace_strict(indices, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
     # per stretch, each condition that is false in it: at how many of its frames, and its value where it first is;
