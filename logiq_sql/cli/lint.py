@@ -91,18 +91,13 @@ def lint_sql(text: str, where: str, polars_override: bool = False, polars_refuse
     return problems
 
 
-# "$phase_1_name .. $phase_4_name": the four phase slots, written as a range
-_SLOT_RANGE = re.compile(r"(\$?)(\w*?)1(\w*) \.\.\s+\$?\2(\d)\3")
-
-
 def _named(field: str, pattern: str) -> set[str]:
-    """The names a header field lists: parenthesised remarks dropped, slot ranges expanded."""
+    """The names a header field lists, parenthesised remarks dropped."""
     while True:
         shorter = re.sub(r"\([^()]*\)", "", field)
         if shorter == field:
             break
         field = shorter
-    field = _SLOT_RANGE.sub(lambda m: ", ".join(f"{m[1]}{m[2]}{i}{m[3]}" for i in range(1, int(m[4]) + 1)), field)
     return set(re.findall(pattern, field))
 
 
@@ -224,7 +219,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from pyspark.sql import types as T
 
     from logiq_sql.core.schema import spark_type
-    from logiq_sql.core.sql import bind
+    from logiq_sql.core.sql import PER_PHASE, bind
     from logiq_sql.engines.base import INPUT_TABLES
     from logiq_sql.engines.spark_engine import spark_text
     from logiq_sql.outputs import replay
@@ -239,7 +234,8 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     for s in list_scenarios():
         values = run_values(s, parse_ego("auto"), 200.0)
         runs += [(t, rel, values) for t, rel in scenario_steps(s)]
-        runs += [("scenario_matches", "match/identify.sql", values), (*MATCH_ROWS_STEP, values),
+        runs += [("scenario_matches", "match/identify.sql", values),
+                 ("scenario_match_phases", "match/match_phases.sql", values), (*MATCH_ROWS_STEP, values),
                  *[("_kpi", rel, values) for rel in s.kpi_queries]]
         if s.sample_queries:  # in the runner's order: the sample events, then each sample query over them
             runs += [("match_samples", "match/samples.sql", values),
@@ -250,7 +246,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     # not keep (the file's header)
     problems, seen = [], {"staging/tracks.sql"}
     for table, rel, values in runs:
-        seen.add(rel)
+        seen.add(rel.split(PER_PHASE)[0])  # a file run for each phase (sql.per_phase) is that file
         problems += spark_problems_in(spark, rel, spark_text(rel), bind(rel, values), table)
     root = root or data_dir("queries")
     for path in portable_files(root):  # overrides run on their engine only (tests/engines/test_polars.py)

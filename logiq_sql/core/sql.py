@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -26,8 +27,48 @@ def shown_path(relative: str) -> str:
     return relative if relative.startswith("/") else f"queries/{relative}"
 
 
+# a query file written for phase 1 and run once per phase of a scenario (``per_phase``): its relative name
+PER_PHASE = "#phases="
+
+
+def per_phase(relative: str, phases: int) -> str:
+    """The name under which queries/<relative>, a select written for phase 1 of a scenario, runs for each of its
+    ``phases`` phases, joined by ``union all`` (``query_text`` expands it; ``logiq-sql render`` shows it)."""
+    return f"{relative}{PER_PHASE}{phases}"
+
+
+def _for_phase(tree: exp.Expression, k: int) -> exp.Expression:
+    """The select written for phase 1, for phase ``k``: it reads phase_<k>, binds $phase_<k>_..., and its
+    ``phase_index`` column is k."""
+    def renamed(node: exp.Expression) -> exp.Expression:
+        if isinstance(node, exp.Table) and node.name == "phase_1":
+            table = node.copy()
+            table.set("this", exp.to_identifier(f"phase_{k}"))
+            return table
+        if isinstance(node, exp.Placeholder) and node.name.startswith("phase_1_"):
+            return exp.Placeholder(this=f"phase_{k}_" + node.name.removeprefix("phase_1_"))
+        if isinstance(node, exp.Alias) and node.alias == "phase_index":
+            return exp.Literal.number(k).as_("phase_index")
+        return node
+
+    return tree.copy().transform(renamed)
+
+
+def _expanded(relative: str) -> str:
+    """queries/<file> run for phases 1..n (``per_phase``): its header, then its select for each phase, joined by
+    union all. Only names change (tables, parameters) and the phase_index literal; no value enters the text."""
+    template, phases = relative.rsplit(PER_PHASE, 1)
+    text = query_text(template)
+    tree = sqlglot.parse_one(text, read="duckdb")
+    header = "".join(line + "\n" for line in itertools.takewhile(lambda x: x.startswith("--"), text.splitlines()))
+    union = "\nunion all\n".join(_for_phase(tree, k).sql("duckdb", pretty=True, comments=False) for k in range(1, int(phases) + 1))
+    return f"{header}-- run for phases 1 .. {phases}\n{union}\n"
+
+
 @functools.cache
 def query_text(relative: str) -> str:
+    if PER_PHASE in relative:
+        return _expanded(relative)
     path = query_path(relative)
     if not path.is_file():
         raise ScenarioError(f"query file {shown_path(relative)} not found.")

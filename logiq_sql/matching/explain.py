@@ -36,7 +36,7 @@ from pathlib import Path
 import polars as pl
 
 from logiq_sql.core.errors import ScenarioError, arg
-from logiq_sql.core.sql import materialise
+from logiq_sql.core.sql import materialise, registered
 from logiq_sql.matching.runner import prepare_relations
 from logiq_sql.spec.plan import (
     DEFAULT_RELATION_RANGE,
@@ -49,13 +49,21 @@ from logiq_sql.spec.plan import (
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
 from logiq_sql.storage import db
 
+# the match steps' rows with the pair's ids beside its integer keys (they join and group on the keys only)
+_WITH_IDS = """
+create or replace temp view {table}_ids as
+select e.drive_id, e.actor_id as ego_id, a.actor_id, s.*
+from {table} as s
+inner join actor_keys as e on s.drive_key = e.drive_key and s.ego_key = e.actor_key
+inner join actor_keys as a on s.drive_key = a.drive_key and s.actor_key = a.actor_key
+"""
 # per pair: the furthest chain, and the frame at which its next phase was needed
 _PROGRESS = """
 with best as (
     select
         drive_id, ego_id, actor_id, phase_index, run_end_frame,
         row_number() over (partition by drive_id, ego_id, actor_id order by phase_index desc, path_key) as rank
-    from chain
+    from chain_ids
 ),
 pairs as (select distinct drive_id, ego_id, actor_id from phase_1),
 scored as (
@@ -85,14 +93,14 @@ left join scored as s
 _CHAINED = """
 with complete as (
     select drive_id, ego_id, actor_id, min(path_key) as path_key
-    from chain where phase_index = $phase_count group by drive_id, ego_id, actor_id
+    from chain_ids where phase_index = $phase_count group by drive_id, ego_id, actor_id
 ),
 steps as (
     select c.drive_id, c.ego_id, c.actor_id, c.phase_index, c.phase_start_frame,
         coalesce(lead(c.phase_start_frame) over (
             partition by c.drive_id, c.ego_id, c.actor_id order by c.phase_index) - 1, c.run_end_frame)
             as phase_end_frame
-    from chain as c
+    from chain_ids as c
     inner join complete as k
         on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
         and starts_with(k.path_key, c.path_key)
@@ -124,7 +132,7 @@ from stretches group by drive_id, ego_id, actor_id, stretch
 """
 _BRIDGED = """
 select drive_id, ego_id, actor_id, phase_index, start_frame, end_frame, start_s, end_s, bridged_frames, jitter
-from phase_runs where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
+from phase_runs_ids where bridged_frames > 0 order by drive_id, ego_id, actor_id, phase_index, start_frame
 """
 
 
@@ -176,6 +184,41 @@ def _failed(phase_index: int, s: Scenario, schema: pl.Schema) -> pl.Expr:
     return pl.concat_list(texts).list.drop_nulls()
 
 
+def _read_steps(con, s: Scenario, values: dict[str, object]):
+    """The scenario's steps on the drive of ``run_drives``, and what explain reads of them: the furthest chain per
+    pair, the bridged runs, the complete chains, phase 1's rows in the unmatched stretches, and per phase the row
+    at the frame it was needed."""
+    prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
+    for table, rel in phase_steps(s):
+        materialise(con, table, rel, values)
+    for table in ("chain", "phase_runs"):
+        con.execute(_WITH_IDS.format(table=table))
+    score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
+    progress = con.sql(_PROGRESS.format(score=score)).pl()
+    bridged = con.sql(_BRIDGED).pl()
+    chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
+    with registered(con, "_stretches", con.sql(_UNMATCHED).pl()):
+        stretch_rows = con.sql("select p.*, u.start_s, u.end_s, u.start_frame, u.end_frame from phase_1 as p "
+                               "join _stretches as u on p.drive_id = u.drive_id and p.ego_id = u.ego_id "
+                               "and p.actor_id = u.actor_id and p.frame between u.start_frame and u.end_frame "
+                               "order by p.frame").pl()
+    stretch_rows = stretch_rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
+    # the row of each phase's table at the frame it was needed (several rows per frame: the first)
+    needed = []
+    for k in range(len(s.phases)):
+        want = progress.filter(pl.col("phases_reached") == k).select("drive_id", "ego_id", "actor_id", "at_frame")
+        # the frame right after phase k stopped holding, else (the drive or the pair ends there) its last frame
+        with registered(con, "_want", want):
+            rows = con.sql(f"select p.*, w.at_frame as wanted_frame from phase_{k + 1} as p join _want as w "
+                           "on p.drive_id = w.drive_id and p.ego_id = w.ego_id and p.actor_id = w.actor_id "
+                           "and p.frame in (w.at_frame, w.at_frame - 1) order by p.frame desc").pl()
+        rows = rows.unique(["ego_id", "actor_id"], keep="first", maintain_order=True)
+        needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("wanted_frame").alias("at_frame"),
+                                  pl.col("frame").alias("shown_frame"), "t_s",
+                                  _failed(k, s, rows.schema).alias("failed")))
+    return progress, bridged, chained, stretch_rows, needed
+
+
 def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: str | None = None,
             overrides: dict[str, str] | None = None, relation_range: str = DEFAULT_RELATION_RANGE,
             scenario_path: ScenarioPath = None, ego_kinds: str | None = None) -> Explanation:
@@ -191,37 +234,9 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         known = [r[0] for r in con.execute("select drive_id from drive_inputs").fetchall()]
         if drive not in known:
             raise ScenarioError(f"explain {arg('drive', drive)}: no such drive in {db_path}.")
-        con.register("run_drives", pl.DataFrame({"drive_id": [drive]}))
         values = run_values(s, parse_ego(ego, ego_kinds), relation_range_m(relation_range))
-        prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
-        for table, rel in phase_steps(s):
-            materialise(con, table, rel, values)
-        score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)
-        progress = con.sql(_PROGRESS.format(score=score)).pl()
-        bridged = con.sql(_BRIDGED).pl()
-        chained = con.sql(_CHAINED, params={"phase_count": len(s.phases)}).pl()
-        unmatched = con.sql(_UNMATCHED).pl()
-        con.register("_stretches", unmatched)
-        stretch_rows = con.sql("select p.*, u.start_s, u.end_s, u.start_frame, u.end_frame from phase_1 as p "
-                               "join _stretches as u on p.drive_id = u.drive_id and p.ego_id = u.ego_id "
-                               "and p.actor_id = u.actor_id and p.frame between u.start_frame and u.end_frame "
-                               "order by p.frame").pl()
-        con.unregister("_stretches")
-        stretch_rows = stretch_rows.unique(["ego_id", "actor_id", "frame"], keep="first", maintain_order=True)
-        # the row of each phase's table at the frame it was needed (several rows per frame: the first)
-        needed = []
-        for k in range(len(s.phases)):
-            want = progress.filter(pl.col("phases_reached") == k).select("drive_id", "ego_id", "actor_id", "at_frame")
-            con.register("_want", want)
-            # the frame right after phase k stopped holding, else (the drive or the pair ends there) its last frame
-            rows = con.sql(f"select p.*, w.at_frame as wanted_frame from phase_{k + 1} as p join _want as w "
-                           "on p.drive_id = w.drive_id and p.ego_id = w.ego_id and p.actor_id = w.actor_id "
-                           "and p.frame in (w.at_frame, w.at_frame - 1) order by p.frame desc").pl()
-            con.unregister("_want")
-            rows = rows.unique(["ego_id", "actor_id"], keep="first", maintain_order=True)
-            needed.append(rows.select("drive_id", "ego_id", "actor_id", pl.col("wanted_frame").alias("at_frame"),
-                                      pl.col("frame").alias("shown_frame"), "t_s",
-                                      _failed(k, s, rows.schema).alias("failed")))
+        with registered(con, "run_drives", pl.DataFrame({"drive_id": [drive]})):
+            progress, bridged, chained, stretch_rows, needed = _read_steps(con, s, values)
     finally:
         con.close()
     at = pl.concat(needed) if needed else None
@@ -233,8 +248,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
                                 f"for this actor and ego in drive {drive} (too far apart, or not within "
                                 f"{arg('relation_range', relation_range)}).")
     names = [p.name for p in s.phases]
-    slots = list(range(1, len(names) + 1))  # phase_index of each phase
-    phase_name = pl.col("phase_index").replace_strict(slots, names, default="?")
+    indices = list(range(1, len(names) + 1))  # phase_index of each phase
+    phase_name = pl.col("phase_index").replace_strict(indices, names, default="?")
     bridged_text = bridged.select(
         "ego_id", "actor_id",
         pl.format("{} frames {}-{} ({} s to {} s): {} frame(s) missing or not holding, {}",
@@ -253,7 +268,7 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         pl.format("{} {} s to {} s ({} s; {})",
                   phase_name,
                   pl.col("start_s").round(2), pl.col("end_s").round(2), (pl.col("end_s") - pl.col("start_s")).round(2),
-                  pl.col("phase_index").replace_strict(slots, limits, default="?")
+                  pl.col("phase_index").replace_strict(indices, limits, default="?")
                   ).alias("text"),
     ).group_by("ego_id", "actor_id", maintain_order=True).agg(pl.col("text").alias("chained"))
     # per stretch, each condition that is false in it: at how many of its frames, and its value where it first is;

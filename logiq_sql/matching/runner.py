@@ -19,6 +19,7 @@ from logiq_sql.spec.plan import (
     ALL_KINDS_CSV,
     IDENTIFY_QUERY,
     JUNCTION_STEPS,
+    MATCH_PHASES_QUERY,
     MATCH_ROWS_STEP,
     RELATION_STEPS,
     SAMPLES_QUERY,
@@ -30,7 +31,7 @@ from logiq_sql.storage.store import ScenarioOutput
 from logiq_sql.storage.tables import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 
 # what run_scenario writes besides the phase steps' tables: a query reading one of them depends on the scenario
-SCENARIO_TABLES = ("scenario_matches", MATCH_ROWS_STEP[0], "_kpi", "match_samples", "_sample")
+SCENARIO_TABLES = ("scenario_matches", "scenario_match_phases", MATCH_ROWS_STEP[0], "_kpi", "match_samples", "_sample")
 
 
 def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scenario],
@@ -107,7 +108,9 @@ def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> Scen
         for table, rel in phase_steps(s):
             engine.materialise(table, rel, values, holding=is_phase(table))
         engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
+        engine.materialise("scenario_match_phases", MATCH_PHASES_QUERY, values)
         matches = engine.frame("scenario_matches")
+        phases = engine.frame("scenario_match_phases")
     metrics = matches.select("match_id")
     with stage("kpis"):
         engine.materialise(*MATCH_ROWS_STEP, values)
@@ -127,11 +130,5 @@ def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> Scen
                     metrics = metrics.join(at, on="match_id", how="left")
     kpis = metrics.select(pl.col("match_id"), pl.lit(s.name).alias("scenario"),
                           *[pl.col(c) for c in s.metric_columns()])
-    phases = pl.concat([
-        matches.select("match_id", "scenario", pl.lit(i, pl.Int64).alias("phase_index"),
-                       pl.lit(phase.name).alias("phase"),
-                       *[pl.col(f"p{i}_{c}").alias(c) for c in ("start_frame", "end_frame", "start_s", "end_s")])
-        for i, phase in enumerate(s.phases, 1)
-    ])
     egos = engine.frame("select drive_id, count(*) as egos from egos group by drive_id")
     return ScenarioOutput(s, matches, phases, kpis, coverage_samples(s, metrics), coverage_buckets(s), egos)

@@ -34,7 +34,7 @@ from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
 from logiq_sql.matching.runner import coverage_buckets, is_phase
 from logiq_sql.spec.contract import sample_columns
-from logiq_sql.spec.plan import IDENTIFY_QUERY, MATCH_ROWS_STEP, SAMPLES_QUERY, phase_steps
+from logiq_sql.spec.plan import IDENTIFY_QUERY, MATCH_PHASES_QUERY, MATCH_ROWS_STEP, SAMPLES_QUERY, phase_steps
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import tables
 from logiq_sql.storage.store import PERSISTED, STORED_ALWAYS
@@ -112,6 +112,7 @@ class SparkResults:
             for table, rel in phase_steps(s):
                 engine.materialise(table, rel, values, holding=is_phase(table))
             engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
+            engine.materialise("scenario_match_phases", MATCH_PHASES_QUERY, values)
         matches = spark.table("scenario_matches")
         with stage("kpis"):
             metrics = matches.select("match_id")
@@ -138,13 +139,7 @@ class SparkResults:
         with stage("match: storing results"):
             self._replace("matches", self._typed(matches.withColumn("run_id", F.lit(self.run_id)), "matches"),
                           drives, s.name)
-            phases = None
-            for i, phase in enumerate(s.phases, 1):
-                one = matches.select("match_id", "drive_id", name.alias("scenario"),
-                                     F.lit(i).cast("bigint").alias("phase_index"), F.lit(phase.name).alias("phase"),
-                                     *[F.col(f"p{i}_{c}").alias(c)
-                                       for c in ("start_frame", "end_frame", "start_s", "end_s")])
-                phases = one if phases is None else phases.unionByName(one)
+            phases = spark.table("scenario_match_phases").join(drive_of, "match_id")
             self._replace("match_phases", self._typed(phases, "match_phases", "drive_id"), drives, s.name)
             kpis = metrics.select("match_id", name.alias("scenario"),
                                   *[F.col(c).cast(sql_type if sql_type != "varchar" else "string").alias(c)

@@ -28,8 +28,9 @@ RUN_VALUES = (
     "max_gap_s", "phase_count", "ego_mode", "ego_every", "ego_actor_ids_csv", "ego_kinds_csv", "relation_range_m",
     "object_relation_range_m", "relation_kinds_csv", "lane_calculation_tolerance_length_m", "min_closing_speed_mps",
     "scenario", "scenario_version", "params_hash",
-    *(f"phase_{i}_{what}" for i in range(1, 5) for what in ("name", "min_duration_s", "max_duration_s")),
 )
+# what each phase i binds as phase_<i>_<value> (logiq_sql.spec.plan.phase_values, match/scenario_phases.sql)
+PHASE_VALUES = ("name", "min_duration_s", "max_duration_s")
 
 
 def _sources(select: exp.Select) -> dict[str, str | exp.Expression]:
@@ -136,7 +137,8 @@ def check_scenario(s: Scenario, queries: list[str]) -> list[str]:
     """Every mismatch between scenario ``s`` and its SQL (``queries``: every file a run of it executes), as
     messages naming the file and key (empty when none)."""
     problems: list[str] = []
-    bound = set(s.bindings()) | set(RUN_VALUES)
+    bound = set(s.bindings()) | set(RUN_VALUES) | {f"phase_{i}_{what}" for i in range(1, len(s.phases) + 1)
+                                                    for what in PHASE_VALUES}
     for rel in dict.fromkeys(queries):
         try:
             used = placeholders(rel)

@@ -3,7 +3,8 @@ every step binds, and the steps in order (also rendered as one readable statemen
 
     egos -> lane_line, lane_neighbours, actor_lanes, ego_lanes -> relations     shared by the scenarios of a group
     [junction steps, encroachments]                                              scenarios with junctions = true
-    [scenario_frames] -> phase_1 .. phase_n -> phase_runs -> chain -> scenario_match    per scenario
+    [scenario_frames] -> phase_1 .. phase_n -> actor_keys, phase_frames, scenario_phases -> phase_runs -> chain
+        -> scenario_match -> scenario_matches, scenario_match_phases                   per scenario
 """
 
 from __future__ import annotations
@@ -11,8 +12,9 @@ from __future__ import annotations
 from logiq_sql.core import units
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.core.schema import EGO_KINDS, OBJECT_KINDS
-from logiq_sql.spec.contract import check_scenario
-from logiq_sql.spec.scenario import MAX_PHASES, Scenario, ScenarioPath, list_scenarios, load_scenario
+from logiq_sql.core.sql import per_phase
+from logiq_sql.spec.contract import PHASE_VALUES, check_scenario
+from logiq_sql.spec.scenario import Scenario, ScenarioPath, list_scenarios, load_scenario
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -35,6 +37,11 @@ JUNCTION_STEPS = (
     ("junction_frames", "junctions/junction_frames.sql"),
     ("crossing_pairs", "junctions/crossing_pairs.sql"),
 )
+# the phases as rows: each a select written for phase 1, run for every phase of a scenario (sql.per_phase), its
+# rows keyed by the actors' integer keys
+ACTOR_KEYS_QUERY = "match/actor_keys.sql"
+PHASE_FRAMES_QUERY = "match/phase_frames.sql"
+SCENARIO_PHASES_QUERY = "match/scenario_phases.sql"
 # the generic steps every scenario's phases go through (the phase contract, docs/scenarios.md)
 MATCH_STEPS = (
     ("phase_runs", "match/phase_runs.sql"),
@@ -42,6 +49,7 @@ MATCH_STEPS = (
     ("scenario_match", "match/sequential.sql"),
 )
 IDENTIFY_QUERY = "match/identify.sql"
+MATCH_PHASES_QUERY = "match/match_phases.sql"
 SAMPLES_QUERY = "match/samples.sql"
 # the rows of tracks and relations inside the matches' intervals, which the KPI and sample queries read
 MATCH_ROWS_STEP = ("match_rows", "kpis/match_rows.sql")
@@ -136,16 +144,14 @@ def relation_kinds_csv(group: list[Scenario]) -> str:
 
 
 def phase_values(s: Scenario) -> dict[str, object]:
-    """Per phase slot 1..MAX_PHASES: ``phase_<i>_name``, ``phase_<i>_min_duration_s`` (0 when none) and
-    ``phase_<i>_max_duration_s`` (NULL when none): the values the phase's duration parameters have."""
+    """Per phase i of ``s``: ``phase_<i>_name``, ``phase_<i>_min_duration_s`` (0 when none) and
+    ``phase_<i>_max_duration_s`` (NULL when none): the values the phase's duration parameters have
+    (match/scenario_phases.sql)."""
     out: dict[str, object] = {"phase_count": len(s.phases)}
-    for i in range(1, MAX_PHASES + 1):
-        phase = s.phases[i - 1] if i <= len(s.phases) else None
-        lo = s.params[phase.min_duration].value if phase and phase.min_duration else None
-        hi = s.params[phase.max_duration].value if phase and phase.max_duration else None
-        out[f"phase_{i}_name"] = phase.name if phase else None
-        out[f"phase_{i}_min_duration_s"] = 0.0 if lo is None else lo
-        out[f"phase_{i}_max_duration_s"] = hi
+    for i, phase in enumerate(s.phases, 1):
+        lo = s.params[phase.min_duration].value if phase.min_duration else None
+        hi = s.params[phase.max_duration].value if phase.max_duration else None
+        out.update(zip((f"phase_{i}_{what}" for what in PHASE_VALUES), (phase.name, 0.0 if lo is None else lo, hi)))
     return out
 
 
@@ -163,11 +169,12 @@ def run_values(s: Scenario, ego: dict[str, object], relation_range_m: float) -> 
 
 def phase_steps(s: Scenario) -> list[tuple[str, str]]:
     """The steps from the relations to the scenario's matches (table, query): the optional frames step, each
-    phase's query, an empty stand-in for the phase slots the scenario does not use, then the generic runs,
-    chain and match."""
+    phase's query, the phases as rows (the frames at which each holds, and their names and duration limits), then
+    the generic runs, chain and match."""
     steps = [("scenario_frames", s.frames_query)] if s.frames_query else []
     steps += [(f"phase_{i}", p.query) for i, p in enumerate(s.phases, 1)]
-    steps += [(f"phase_{i}", "match/no_phase.sql") for i in range(len(s.phases) + 1, MAX_PHASES + 1)]
+    steps += [("actor_keys", ACTOR_KEYS_QUERY), ("phase_frames", per_phase(PHASE_FRAMES_QUERY, len(s.phases))),
+              ("scenario_phases", per_phase(SCENARIO_PHASES_QUERY, len(s.phases)))]
     return [*steps, *MATCH_STEPS]
 
 
@@ -181,5 +188,5 @@ def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
 
 def scenario_queries(s: Scenario) -> list[str]:
     """Every query file a run of ``s`` executes, in order."""
-    return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, MATCH_ROWS_STEP[1], SAMPLES_QUERY,
-            *s.kpi_queries, *s.sample_queries]
+    return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, MATCH_PHASES_QUERY, MATCH_ROWS_STEP[1],
+            SAMPLES_QUERY, *s.kpi_queries, *s.sample_queries]

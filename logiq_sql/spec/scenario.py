@@ -30,7 +30,6 @@ from logiq_sql.core.paths import data_dir, query_path
 from logiq_sql.core.schema import OBJECT_KINDS, VEHICLE_KINDS
 
 PARAM_TYPES = (*units.DIMENSIONS, "kinds")
-MAX_PHASES = 4  # match/phase_runs.sql reads phase_1 .. phase_4
 _PARAM_KEYS = {"type", "default", "description"}
 _TOP_KEYS = {
     "name", "description", "spec", "version", "abstract", "extends", "actors", "params", "phases",
@@ -310,9 +309,6 @@ def _resolve(name: str, files: dict[str, Path], chain: tuple[str, ...]) -> Scena
         frames = _query_ref(path, frames, f"{path} frames")
     if not abstract and not phases:
         raise ScenarioError(f"{path}: a concrete scenario needs [[phases]] (docs/scenarios.md).")
-    if len(phases) > MAX_PHASES:
-        raise ScenarioError(f"{path}: {len(phases)} phases; a scenario has at most {MAX_PHASES} "
-                            "(queries/match/phase_runs.sql).")
     names = [p.name for p in phases]
     if len(set(names)) != len(names):
         raise ScenarioError(f"{path}: two [[phases]] share a name; each phase needs its own.")

@@ -1,7 +1,7 @@
 -- kpis: match_rows
 -- grain: one row per (match_id, frame) of the match interval [start_frame, end_frame] at which the ego or the
 --        actor has a track row: the rows of tracks and relations the KPI and sample queries read
--- reads: scenario_matches, egos, tracks, relations
+-- reads: scenario_matches, tracks, relations
 -- params: none
 --
 -- The KPIs of a few hundred matches need the rows inside their intervals only: they are taken here once per
@@ -16,23 +16,17 @@
 with
 
 keyed as (
-    -- each match with the integer keys of its drive, ego and actor, and a key of its own (match_key) for the joins
-    -- and groups below
+    -- each match with a key of its own (match_key) for the joins and groups below; scenario_matches carries the
+    -- integer keys of its drive, ego and actor (match/identify.sql)
     select
-        m.match_id,
-        e.drive_key,
-        e.ego_key,
-        a.actor_key,
-        m.start_frame,
-        m.end_frame,
-        row_number() over (order by m.match_id) as match_key
-    from scenario_matches as m
-    inner join egos as e
-        on m.drive_id = e.drive_id and m.ego_id = e.ego_id
-    inner join (
-        select drive_key, actor_key, min(actor_id) as actor_id from tracks group by drive_key, actor_key
-    ) as a
-        on e.drive_key = a.drive_key and m.actor_id = a.actor_id
+        match_id,
+        drive_key,
+        ego_key,
+        actor_key,
+        start_frame,
+        end_frame,
+        row_number() over (order by match_id) as match_key
+    from scenario_matches
 ),
 
 roles as (

@@ -1,5 +1,5 @@
 -- match: chain
--- grain: one row per (drive_id, ego_id, actor_id, chain_start_frame, path_key): a chain of phases from a
+-- grain: one row per (drive_key, ego_key, actor_key, chain_start_frame, path_key): a chain of phases from a
 --        phase-1 run, as far as it gets (phase_index = the phase it has reached); `explain` reads the
 --        partial ones, match/sequential.sql the complete ones
 -- reads: phase_runs (the runs not flagged as jitter)
@@ -17,9 +17,9 @@
 -- transitions.
 with recursive chain as (
     select
-        drive_id,
-        ego_id,
-        actor_id,
+        drive_key,
+        ego_key,
+        actor_key,
         1 as phase_index,
         start_frame as chain_start_frame,
         start_frame as phase_start_frame,
@@ -32,9 +32,9 @@ with recursive chain as (
     union all
 
     select
-        c.drive_id,
-        c.ego_id,
-        c.actor_id,
+        c.drive_key,
+        c.ego_key,
+        c.actor_key,
         c.phase_index + 1 as phase_index,
         c.chain_start_frame,
         case
@@ -54,7 +54,7 @@ with recursive chain as (
             as varchar), 12, '0') as path_key
     from chain as c
     inner join phase_runs as j
-        on c.drive_id = j.drive_id and c.ego_id = j.ego_id and c.actor_id = j.actor_id
+        on c.drive_key = j.drive_key and c.ego_key = j.ego_key and c.actor_key = j.actor_key
         and j.phase_index = c.phase_index + 1
     where c.phase_index < $phase_count
         and not j.jitter

@@ -1,8 +1,7 @@
 -- match: phase_runs
--- grain: one row per (phase_index, drive_id, ego_id, actor_id, segment, run): a stretch of frames in which a
+-- grain: one row per (phase_index, drive_key, ego_key, actor_key, segment, run): a stretch of frames in which a
 --        phase holds, gaps of at most max_gap bridged, flagged as jitter when it held at fewer than half its frames
--- reads: phase_1 .. phase_4 (the scenario's phase queries, the phase contract of docs/scenarios.md; a scenario
---        with fewer phases reads match/no_phase.sql for the rest), drive_inputs
+-- reads: phase_frames (the frames at which each phase of the scenario holds, match/phase_frames.sql), drive_inputs
 -- params: $max_gap_s
 --
 -- A run is a maximal stretch of frames of one (ego, actor) pair and one segment in which the phase holds, where
@@ -20,33 +19,23 @@
 -- Runs never span two segments (e.g. two lane runs of the ego).
 with
 
-holding as (
-    select distinct 1 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_1 where holds
-    union all
-    select distinct 2 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_2 where holds
-    union all
-    select distinct 3 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_3 where holds
-    union all
-    select distinct 4 as phase_index, drive_id, ego_id, actor_id, segment, frame, t_s from phase_4 where holds
-),
-
 stepped as (
     select
         h.*,
         cast(floor($max_gap_s / nullif(d.dt_s, 0) + 1e-9) as bigint) as max_gap_frames,
         h.frame - lag(h.frame) over (
-            partition by h.phase_index, h.drive_id, h.ego_id, h.actor_id, h.segment order by h.frame
+            partition by h.phase_index, h.drive_key, h.ego_key, h.actor_key, h.segment order by h.frame
         ) as step
-    from holding as h
+    from phase_frames as h
     inner join drive_inputs as d
-        on h.drive_id = d.drive_id
+        on h.drive_key = d.drive_key
 ),
 
 numbered as (
     select
         *,
         sum(case when step is null or step - 1 > max_gap_frames then 1 else 0 end) over (
-            partition by phase_index, drive_id, ego_id, actor_id, segment
+            partition by phase_index, drive_key, ego_key, actor_key, segment
             order by frame rows between unbounded preceding and current row
         ) as run
     from stepped
@@ -54,9 +43,9 @@ numbered as (
 
 select
     phase_index,
-    drive_id,
-    ego_id,
-    actor_id,
+    drive_key,
+    ego_key,
+    actor_key,
     segment,
     run,
     min(frame) as start_frame,
@@ -67,4 +56,4 @@ select
     max(frame) - min(frame) + 1 - count(*) as bridged_frames,
     2 * count(*) < max(frame) - min(frame) + 1 as jitter
 from numbered
-group by phase_index, drive_id, ego_id, actor_id, segment, run
+group by phase_index, drive_key, ego_key, actor_key, segment, run

@@ -1,12 +1,12 @@
 -- match: sequential
--- grain: one row per match of a scenario: its phases (up to four) one after the other, each phase's interval
---        (p1_* .. p4_*; NULL past the scenario's last phase) and the match interval [start, end]
--- reads: chain (match/chain.sql over phase_runs), tracks, drive_inputs
--- params: $phase_count, $phase_1_min_duration_s .. $phase_4_min_duration_s, $phase_1_max_duration_s ..
---         $phase_4_max_duration_s (the durations the scenario's phases name; no minimum: 0, no maximum: NULL),
---         $max_gap_s
+-- grain: one row per (match, phase) of a scenario: the match interval [start, end] and the phase's interval in it
+--        (phase_index; phase_start_*, phase_end_*), one row for each of the scenario's phases; the pair by its ids
+--        and its integer keys (drive_key, ego_key, actor_key), on which every join and window here is made
+-- reads: chain (match/chain.sql over phase_runs), scenario_phases (the phases' duration limits), tracks,
+--        drive_inputs, actor_keys (the ids of the keys, for the output)
+-- params: $phase_count, $max_gap_s
 --
--- Every scenario, one phase or four, is matched by this query (docs/semantics.md, "Phases and matches"):
+-- Every scenario, whatever its number of phases, is matched by this query (docs/semantics.md, "Phases and matches"):
 --   1. A match is a complete chain (chain.sql): phase k lasts from its transition frame to the frame before
 --      the next phase's transition; the last phase to the end of its run. Of several chains from one start,
 --      the one with the earliest transitions is kept.
@@ -27,29 +27,29 @@ with
 chosen as (
     -- per start, the complete chain with the earliest transitions
     select
-        drive_id,
-        ego_id,
-        actor_id,
+        drive_key,
+        ego_key,
+        actor_key,
         chain_start_frame,
         min(path_key) as path_key
     from chain
     where phase_index = $phase_count
-    group by drive_id, ego_id, actor_id, chain_start_frame
+    group by drive_key, ego_key, actor_key, chain_start_frame
 ),
 
 steps as (
     -- the phases of the chosen chains: the rows whose key is a prefix of the chosen key
     select
-        c.drive_id,
-        c.ego_id,
-        c.actor_id,
+        c.drive_key,
+        c.ego_key,
+        c.actor_key,
         c.chain_start_frame,
         c.phase_index,
         c.phase_start_frame,
         c.run_end_frame
     from chain as c
     inner join chosen as k
-        on c.drive_id = k.drive_id and c.ego_id = k.ego_id and c.actor_id = k.actor_id
+        on c.drive_key = k.drive_key and c.ego_key = k.ego_key and c.actor_key = k.actor_key
         and c.chain_start_frame = k.chain_start_frame
         and starts_with(k.path_key, c.path_key)
 ),
@@ -59,33 +59,19 @@ phases as (
         s.*,
         coalesce(
             lead(s.phase_start_frame) over (
-                partition by s.drive_id, s.ego_id, s.actor_id, s.chain_start_frame order by s.phase_index
+                partition by s.drive_key, s.ego_key, s.actor_key, s.chain_start_frame order by s.phase_index
             ) - 1,
             s.run_end_frame
         ) as phase_end_frame
     from steps as s
 ),
 
-limits as (
-    select 1 as phase_index, cast($phase_1_min_duration_s as double) as min_s,
-        cast($phase_1_max_duration_s as double) as max_s
-    union all
-    select 2 as phase_index, cast($phase_2_min_duration_s as double) as min_s,
-        cast($phase_2_max_duration_s as double) as max_s
-    union all
-    select 3 as phase_index, cast($phase_3_min_duration_s as double) as min_s,
-        cast($phase_3_max_duration_s as double) as max_s
-    union all
-    select 4 as phase_index, cast($phase_4_min_duration_s as double) as min_s,
-        cast($phase_4_max_duration_s as double) as max_s
-),
-
 spans as (
     -- per chain: its frames, where phase 1 ends and where the last phase begins, and the limits that trim them
     select
-        p.drive_id,
-        p.ego_id,
-        p.actor_id,
+        p.drive_key,
+        p.ego_key,
+        p.actor_key,
         p.chain_start_frame,
         min(p.phase_start_frame) as first_frame,
         max(p.phase_end_frame) as last_frame,
@@ -94,18 +80,18 @@ spans as (
         max(case when p.phase_index = 1 then l.max_s end) as first_max_s,
         max(case when p.phase_index = $phase_count then l.max_s end) as last_max_s
     from phases as p
-    inner join limits as l
+    inner join scenario_phases as l
         on p.phase_index = l.phase_index
-    group by p.drive_id, p.ego_id, p.actor_id, p.chain_start_frame
+    group by p.drive_key, p.ego_key, p.actor_key, p.chain_start_frame
 ),
 
 ego_tracks as (
     -- the track rows of the chains' egos: the three joins below build their hash tables on these, not on every
     -- track row (the left joins of `timed` build on their right side: all of tracks, 1 M rows at tier S)
-    select t.drive_id, t.actor_id, t.frame, t.t_s
+    select t.drive_key, t.actor_key, t.frame, t.t_s
     from tracks as t
-    inner join (select distinct drive_id, ego_id from spans) as s
-        on t.drive_id = s.drive_id and t.actor_id = s.ego_id
+    inner join (select distinct drive_key, ego_key from spans) as s
+        on t.drive_key = s.drive_key and t.actor_key = s.ego_key
 ),
 
 ego_frames as (
@@ -122,9 +108,9 @@ ego_frames as (
         end as piece
     from spans as s
     inner join drive_inputs as d
-        on s.drive_id = d.drive_id
+        on s.drive_key = d.drive_key
     inner join ego_tracks as e
-        on s.drive_id = e.drive_id and s.ego_id = e.actor_id
+        on s.drive_key = e.drive_key and s.ego_key = e.actor_key
         and e.frame between s.first_frame and s.last_frame
 ),
 
@@ -133,31 +119,31 @@ transitions as (
     -- frame * dt_s when the ego's track misses that frame (a bridged gap), so that the kept maximum and the
     -- measured duration agree
     select
-        drive_id,
-        ego_id,
-        actor_id,
+        drive_key,
+        ego_key,
+        actor_key,
         chain_start_frame,
         piece,
         coalesce(max(case when frame = p1_end_frame then t_s end), max(p1_end_frame * dt_s)) as p1_end_s,
         coalesce(max(case when frame = last_start_frame then t_s end), max(last_start_frame * dt_s))
             as last_start_s
     from ego_frames
-    group by drive_id, ego_id, actor_id, chain_start_frame, piece
+    group by drive_key, ego_key, actor_key, chain_start_frame, piece
 ),
 
 kept as (
     -- the frames within the maximum of the first and the last phase, counted from the transitions
     select
-        f.drive_id,
-        f.ego_id,
-        f.actor_id,
+        f.drive_key,
+        f.ego_key,
+        f.actor_key,
         f.chain_start_frame,
         f.piece,
         min(f.frame) as start_frame,
         max(f.frame) as end_frame
     from ego_frames as f
     inner join transitions as t
-        on f.drive_id = t.drive_id and f.ego_id = t.ego_id and f.actor_id = t.actor_id
+        on f.drive_key = t.drive_key and f.ego_key = t.ego_key and f.actor_key = t.actor_key
         and f.chain_start_frame = t.chain_start_frame and f.piece = t.piece
     where $phase_count = 1
         or (
@@ -165,14 +151,14 @@ kept as (
             and (f.frame < f.last_start_frame or f.last_max_s is null
                 or f.t_s <= t.last_start_s + f.last_max_s + 1e-6)
         )
-    group by f.drive_id, f.ego_id, f.actor_id, f.chain_start_frame, f.piece
+    group by f.drive_key, f.ego_key, f.actor_key, f.chain_start_frame, f.piece
 ),
 
 clipped as (
     select
-        p.drive_id,
-        p.ego_id,
-        p.actor_id,
+        p.drive_key,
+        p.ego_key,
+        p.actor_key,
         p.chain_start_frame,
         k.piece,
         p.phase_index,
@@ -182,9 +168,9 @@ clipped as (
         l.max_s
     from phases as p
     inner join kept as k
-        on p.drive_id = k.drive_id and p.ego_id = k.ego_id and p.actor_id = k.actor_id
+        on p.drive_key = k.drive_key and p.ego_key = k.ego_key and p.actor_key = k.actor_key
         and p.chain_start_frame = k.chain_start_frame
-    inner join limits as l
+    inner join scenario_phases as l
         on p.phase_index = l.phase_index
 ),
 
@@ -196,79 +182,52 @@ timed as (
         coalesce(te.t_s, c.phase_end_frame * d.dt_s) as phase_end_s
     from clipped as c
     inner join drive_inputs as d
-        on c.drive_id = d.drive_id
+        on c.drive_key = d.drive_key
     left join ego_tracks as ts
-        on c.drive_id = ts.drive_id and c.ego_id = ts.actor_id and c.phase_start_frame = ts.frame
+        on c.drive_key = ts.drive_key and c.ego_key = ts.actor_key and c.phase_start_frame = ts.frame
     left join ego_tracks as te
-        on c.drive_id = te.drive_id and c.ego_id = te.actor_id and c.phase_end_frame = te.frame
+        on c.drive_key = te.drive_key and c.ego_key = te.actor_key and c.phase_end_frame = te.frame
 ),
 
 matched as (
+    -- per piece of a chain: whether every phase fits its durations, and the match interval
     select
-        drive_id,
-        ego_id,
-        actor_id,
-        chain_start_frame,
-        piece,
+        *,
         min(case
             when phase_end_s - phase_start_s >= coalesce(min_s, 0) - 1e-6
                 and (max_s is null or phase_end_s - phase_start_s <= max_s + 1e-6) then 1
             else 0
-        end) as durations_ok,
-        min(phase_start_frame) as start_frame,
-        max(phase_end_frame) as end_frame,
-        min(phase_start_s) as start_s,
-        max(phase_end_s) as end_s,
-        max(case when phase_index = 1 then phase_start_frame end) as p1_start_frame,
-        max(case when phase_index = 1 then phase_end_frame end) as p1_end_frame,
-        max(case when phase_index = 1 then phase_start_s end) as p1_start_s,
-        max(case when phase_index = 1 then phase_end_s end) as p1_end_s,
-        max(case when phase_index = 2 then phase_start_frame end) as p2_start_frame,
-        max(case when phase_index = 2 then phase_end_frame end) as p2_end_frame,
-        max(case when phase_index = 2 then phase_start_s end) as p2_start_s,
-        max(case when phase_index = 2 then phase_end_s end) as p2_end_s,
-        max(case when phase_index = 3 then phase_start_frame end) as p3_start_frame,
-        max(case when phase_index = 3 then phase_end_frame end) as p3_end_frame,
-        max(case when phase_index = 3 then phase_start_s end) as p3_start_s,
-        max(case when phase_index = 3 then phase_end_s end) as p3_end_s,
-        max(case when phase_index = 4 then phase_start_frame end) as p4_start_frame,
-        max(case when phase_index = 4 then phase_end_frame end) as p4_end_frame,
-        max(case when phase_index = 4 then phase_start_s end) as p4_start_s,
-        max(case when phase_index = 4 then phase_end_s end) as p4_end_s
+        end) over (partition by drive_key, ego_key, actor_key, chain_start_frame, piece) as durations_ok,
+        min(phase_start_frame) over (partition by drive_key, ego_key, actor_key, chain_start_frame, piece)
+            as start_frame,
+        max(phase_end_frame) over (partition by drive_key, ego_key, actor_key, chain_start_frame, piece) as end_frame,
+        min(phase_start_s) over (partition by drive_key, ego_key, actor_key, chain_start_frame, piece) as start_s,
+        max(phase_end_s) over (partition by drive_key, ego_key, actor_key, chain_start_frame, piece) as end_s,
+        max(phase_end_s) over (partition by drive_key, ego_key, actor_key, chain_start_frame)
+            - min(phase_start_s) over (partition by drive_key, ego_key, actor_key, chain_start_frame) as chain_s
     from timed
-    group by drive_id, ego_id, actor_id, chain_start_frame, piece
 )
 
 select
-    drive_id,
-    ego_id,
-    actor_id,
-    start_frame,
-    end_frame,
-    start_s,
-    end_s,
-    p1_start_frame,
-    p1_end_frame,
-    p1_start_s,
-    p1_end_s,
-    p2_start_frame,
-    p2_end_frame,
-    p2_start_s,
-    p2_end_s,
-    p3_start_frame,
-    p3_end_frame,
-    p3_start_s,
-    p3_end_s,
-    p4_start_frame,
-    p4_end_frame,
-    p4_start_s,
-    p4_end_s
-from (
-    select
-        *,
-        max(end_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame)
-            - min(start_s) over (partition by drive_id, ego_id, actor_id, chain_start_frame) as chain_s
-    from matched
-) as chains
-where durations_ok = 1
-    and chain_s >= $max_gap_s - 1e-6
+    e.drive_id,
+    e.actor_id as ego_id,
+    a.actor_id,
+    m.start_frame,
+    m.end_frame,
+    m.start_s,
+    m.end_s,
+    m.phase_index,
+    m.phase_start_frame,
+    m.phase_end_frame,
+    m.phase_start_s,
+    m.phase_end_s,
+    m.drive_key,
+    m.ego_key,
+    m.actor_key
+from matched as m
+inner join actor_keys as e
+    on m.drive_key = e.drive_key and m.ego_key = e.actor_key
+inner join actor_keys as a
+    on m.drive_key = a.drive_key and m.actor_key = a.actor_key
+where m.durations_ok = 1
+    and m.chain_s >= $max_gap_s - 1e-6

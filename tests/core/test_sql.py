@@ -22,7 +22,7 @@ def test_every_query_is_portable_and_its_header_says_what_it_reads_and_binds():
 def test_a_header_that_drifted_from_its_query_is_a_lint_problem(tmp_path):
     root = tmp_path / "queries"
     (root / "match").mkdir(parents=True)
-    query = ("-- reads: runs, egos (remark, with a comma)\n-- params: $phase_1_name .. $phase_3_name\n"
+    query = ("-- reads: runs, egos (remark, with a comma)\n-- params: $phase_1_name, $phase_2_name, $phase_3_name\n"
              "with c as (select * from runs) select $phase_1_name, $phase_2_name, $phase_4_name, * from c join t using (k)")
     (root / "match/q.sql").write_text(query)
     assert lint_tree(root) == [

@@ -75,7 +75,7 @@ def test_the_engine_computes_a_shared_step_once_and_forgets_it(tmp_path):
         engine.share(shared_phase_steps(scenarios, values))
         engine.materialise("phase_2", "phases/ego_on_same_lane.sql", values[CUT_IN])
         engine.materialise("phase_1", "phases/ego_on_same_lane.sql", values[CUT_OUT])
-        engine.materialise("phase_2", "match/no_phase.sql", values[CUT_OUT])  # a view replaced by a table
+        engine.materialise("phase_2", "phases/ego_side_of_npc.sql", values[CUT_OUT])  # a view replaced by a table
 
         def temp_objects():
             return {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary union all "

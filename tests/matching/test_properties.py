@@ -16,7 +16,7 @@ import polars as pl
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from logiq_sql.core.sql import materialise
+from logiq_sql.core.sql import materialise, per_phase
 from logiq_sql.matching.runner import coverage_buckets
 
 DT = 0.1
@@ -45,7 +45,10 @@ def bridged_runs(frames: list[int], gap: int = 0) -> list[tuple[int, int]]:
     return out
 
 
-DRIVES = pl.DataFrame({"drive_id": ["d"], "dt_s": [DT]})
+DRIVES = pl.DataFrame({"drive_id": ["d"], "drive_key": [1], "dt_s": [DT]})
+# the integer keys of the drive's actors (match/actor_keys.sql): the ego e, the actors a, b and the cyclist c
+KEYS = {"e": 1, "a": 2, "b": 3, "c": 4}
+ACTOR_KEYS = pl.DataFrame({"drive_id": "d", "actor_id": list(KEYS), "drive_key": 1, "actor_key": list(KEYS.values())})
 
 
 # --- runs -----------------------------------------------------------------------------------------------------------
@@ -64,14 +67,15 @@ def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment(pairs, max_ga
     phases = {f"phase_{i + 1}": pl.DataFrame(
         [{"drive_id": "d", "ego_id": "e", "actor_id": a, "frame": f, "t_s": f * DT, "segment": seg, "holds": p[i]}
          for a, f, p, seg in rows], schema=PHASE_SCHEMA) for i in range(4)}
-    got = run("match/phase_runs.sql", {**phases, "drive_inputs": DRIVES}, {"max_gap_s": max_gap_s})
-    got = sorted(got.select("phase_index", "actor_id", "segment", "start_frame", "end_frame", "jitter").iter_rows())
+    frames = run(per_phase("match/phase_frames.sql", 4), {**phases, "actor_keys": ACTOR_KEYS})
+    got = run("match/phase_runs.sql", {"phase_frames": frames, "drive_inputs": DRIVES}, {"max_gap_s": max_gap_s})
+    got = sorted(got.select("phase_index", "actor_key", "segment", "start_frame", "end_frame", "jitter").iter_rows())
     gap = math.floor(max_gap_s / DT + 1e-9)
     held = {(i, actor, seg): {f for x, f, p, s in rows if x == actor and s == seg and p[i]}
             for i in range(4) for actor in ("a", "b") for seg in (0, 1)}  # a frame holds if any of its rows does
     expected = sorted(
         # jitter: the run held at fewer than half of its frames
-        (i + 1, actor, seg, a, b, 2 * sum(a <= f <= b for f in frames) < b - a + 1)
+        (i + 1, KEYS[actor], seg, a, b, 2 * sum(a <= f <= b for f in frames) < b - a + 1)
         for (i, actor, seg), frames in held.items() for a, b in bridged_runs(list(frames), gap)
     )
     assert got == expected
@@ -135,24 +139,29 @@ def test_two_phases_chain_by_the_one_rule_and_trim_to_the_limits(n, min1, min2, 
         return a % 7 == 3
 
     runs = pl.DataFrame(
-        [{"phase_index": k, "drive_id": "d", "ego_id": "e", "actor_id": "a", "start_frame": a, "end_frame": b,
-          "max_gap_frames": gap, "jitter": jitter(a)} for k, flags in ((1, ok1), (2, ok2)) for a, b in runs_of(flags)],
-        schema={"phase_index": pl.Int64, "drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String,
+        [{"phase_index": k, "drive_key": 1, "ego_key": KEYS["e"], "actor_key": KEYS["a"], "start_frame": a,
+          "end_frame": b, "max_gap_frames": gap, "jitter": jitter(a)}
+         for k, flags in ((1, ok1), (2, ok2)) for a, b in runs_of(flags)],
+        schema={"phase_index": pl.Int64, "drive_key": pl.Int64, "ego_key": pl.Int64, "actor_key": pl.Int64,
                 "start_frame": pl.Int64, "end_frame": pl.Int64, "max_gap_frames": pl.Int64, "jitter": pl.Boolean})
-    tracks = pl.DataFrame({"drive_id": "d", "actor_id": "e", "frame": ego_frames,
-                           "t_s": [round(f * DT, 6) for f in ego_frames]},
-                          schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64})
+    tracks = pl.DataFrame({"drive_id": "d", "actor_id": "e", "drive_key": 1, "actor_key": KEYS["e"],
+                           "frame": ego_frames, "t_s": [round(f * DT, 6) for f in ego_frames]},
+                          schema={"drive_id": pl.String, "actor_id": pl.String, "drive_key": pl.Int64,
+                                  "actor_key": pl.Int64, "frame": pl.Int64, "t_s": pl.Float64})
     values = {"phase_count": 2, "max_gap_s": 0.0, "phase_1_min_duration_s": min1, "phase_2_min_duration_s": min2,
-              "phase_1_max_duration_s": max1, "phase_2_max_duration_s": max2,
-              "phase_3_min_duration_s": 0.0, "phase_4_min_duration_s": 0.0,
-              "phase_3_max_duration_s": None, "phase_4_max_duration_s": None}
+              "phase_1_max_duration_s": max1, "phase_2_max_duration_s": max2, "phase_1_name": "p1", "phase_2_name": "p2"}
     con = duckdb.connect()
-    for name, frame in (("phase_runs", runs), ("tracks", tracks), ("drive_inputs", DRIVES)):
+    for name, frame in (("phase_runs", runs), ("tracks", tracks), ("drive_inputs", DRIVES),
+                        ("actor_keys", ACTOR_KEYS)):
         con.register(f"_{name}", frame)
         con.execute(f"create temp table {name} as select * from _{name}")
+    materialise(con, "scenario_phases", per_phase("match/scenario_phases.sql", 2), values)
     materialise(con, "chain", "match/chain.sql", values)
     materialise(con, "out", "match/sequential.sql", values)
-    got = sorted(con.sql("select p1_start_frame, p1_end_frame, p2_start_frame, p2_end_frame from out").fetchall())
+    got = sorted(con.sql(  # one row per match and phase: each match's two phases side by side
+        "select " + ", ".join(f"min(phase_{edge}_frame) filter (where phase_index = {k})"
+                              for k in (1, 2) for edge in ("start", "end"))
+        + " from out group by start_frame").fetchall())
     lim = {"min1": min1, "min2": min2, "max1": max1, "max2": max2}
     kept = [[r for r in runs_of(flags) if not jitter(r[0])] for flags in (ok1, ok2)]
     assert got == oracle_two_phases(*kept, ego_frames, lim, gap)
@@ -232,18 +241,20 @@ def test_cyclist_phase_cuts_episodes_into_pieces_of_at_most_the_maximum(frames, 
                            for f, (_, _, v) in present],
                           schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64,
                                   "speed_mps": pl.Float64})
-    drives = pl.DataFrame({"drive_id": ["d"], "dt_s": [dt]})
+    tracks = tracks.with_columns(drive_key=pl.lit(1, pl.Int64), actor_key=pl.lit(KEYS["e"], pl.Int64))
+    drives = pl.DataFrame({"drive_id": ["d"], "drive_key": [1], "dt_s": [dt]})
     con = duckdb.connect()
-    for name, frame in (("relations", relations), ("tracks", tracks), ("drive_inputs", drives)):
+    for name, frame in (("relations", relations), ("tracks", tracks), ("drive_inputs", drives),
+                        ("actor_keys", ACTOR_KEYS)):
         con.register(f"_{name}", frame)
         con.execute(f"create temp table {name} as select * from _{name}")
     values = {"sut_minimal_speed_mps": 5 / 3.6, "min_distance_from_cyclist_m": 0.0, "max_distance_from_cyclist_m": 5.0,
               "max_gap_s": 0.0, "phase_count": 1, "phase_1_min_duration_s": 0.0, "phase_1_max_duration_s": max_s,
-              **{f"phase_{i}_{w}_duration_s": (0.0 if w == "min" else None) for i in (2, 3, 4) for w in ("min", "max")}}
+              "phase_1_name": "cyclist_close"}
     materialise(con, "phase_1", "phases/cyclist_close_to_moving_sut.sql", values)
-    for i in (2, 3, 4):
-        materialise(con, f"phase_{i}", "match/no_phase.sql", values)
-    for table, query in (("phase_runs", "match/phase_runs.sql"), ("chain", "match/chain.sql"),
+    for table, query in (("phase_frames", per_phase("match/phase_frames.sql", 1)),
+                         ("scenario_phases", per_phase("match/scenario_phases.sql", 1)),
+                         ("phase_runs", "match/phase_runs.sql"), ("chain", "match/chain.sql"),
                          ("out", "match/sequential.sql")):
         materialise(con, table, query, values)
     got = sorted(con.sql("select start_frame, end_frame from out").fetchall())

@@ -84,7 +84,8 @@ def dependent_steps(scenario: str, old: dict[str, str], new: dict[str, str], sce
         values.append(run_values(s, parse_ego("auto"), 200.0))
     changed: set[str] = set()
     out = set()
-    for table, rel in [*phase_steps(s), ("scenario_matches", "match/identify.sql")]:
+    for table, rel in [*phase_steps(s), ("scenario_matches", "match/identify.sql"),
+                       ("scenario_match_phases", "match/match_phases.sql")]:
         if bind(rel, values[0]) != bind(rel, values[1]) or tables_read(rel) & changed:
             changed.add(table)
             out.add(f"{table} {rel}")
@@ -98,8 +99,7 @@ def statuses(result, scenario: str) -> dict[tuple[tuple[str, ...], str], str]:
 
 def assert_reran(result, must_run) -> None:
     """Every cached step of ``result`` was computed when ``must_run(batch, owners, step)``, else reused; a step
-    that must run may be reused from a step of the same batch with the same query file computed before it (the
-    empty stand-ins phase_2 .. phase_4 of a one-phase scenario have one key)."""
+    that must run may be reused from a step of the same batch with the same query file computed before it."""
     computed: set[tuple[tuple[str, ...], str]] = set()
     for batch, owners, step, status in result.cache_steps:
         query = step.split(" ", 1)[1]
@@ -155,9 +155,9 @@ def test_a_changed_query_reruns_its_step_and_those_after_it(ingested, tmp_path):
     own_follower(folder, 2, changed)
     result = match(db, scenarios=["follower_vehicle"], scenario_path=folder)
     phase = f"phase_1 {folder.resolve()}/phases/follower_vehicle.sql"
-    after = {phase, "phase_runs match/phase_runs.sql", "chain match/chain.sql", "phase_2 match/no_phase.sql",
-             "phase_3 match/no_phase.sql", "phase_4 match/no_phase.sql", "scenario_match match/sequential.sql",
-             "scenario_matches match/identify.sql"}
+    after = {phase, "phase_frames match/phase_frames.sql#phases=1", "phase_runs match/phase_runs.sql",
+             "chain match/chain.sql", "scenario_match match/sequential.sql", "scenario_matches match/identify.sql",
+             "scenario_match_phases match/match_phases.sql"}
     assert phase in {step for *_, step, status in result.cache_steps if status == "computed"}
     assert_reran(result, lambda _b, _o, step: step in after)
     assert_same_outputs(db, forced_copy(db, before, scenarios=["follower_vehicle"], scenario_path=folder))
