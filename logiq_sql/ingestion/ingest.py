@@ -21,7 +21,7 @@ from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import locate
+from logiq_sql.ingestion.localise import locate_maps
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -63,7 +63,6 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
-LOCATED = schema.TRACK_LANES.column_names  # what locate gives, in track_lanes' order (its keys follow)
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
 INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
@@ -419,28 +418,20 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         for table in schema.MAP_TABLE_NAMES:
             _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
         _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])
+        # one ordered pass over the batch: its rows (each drive's sorted by actor_id, frame: clean_batch) with their
+        # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and
+        # localised as it is (no read back from the file)
         with stage("kinematics"):
-            # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
-            # order, a track being the rows of one track_no; written once, into tracks
-            raw = pl.concat([t for _, t, *_ in accepted])
-            with registered(con, "tracks_raw", with_keys(raw, keys)):
-                con.execute("insert into tracks " + query_text("staging/tracks.sql"))
+            raw = with_keys(pl.concat([t for _, t, *_ in accepted]), keys)
+            with registered(con, "tracks_raw", raw):
+                staged = con.sql(query_text("staging/tracks.sql")).pl()
             del raw
-        for map_id, drive in maps.items():
-            on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
-            con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
-            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from tracks "
-                             "where drive_id in (select drive_id from _on_map)").pl()
-            with stage("localisation"):
-                located = locate(staged, drive.lanes)
-            if not located.is_empty():
-                # the row's keys from tracks, stored in (drive, actor, frame) order as tracks are
-                with registered(con, "_located", located):
-                    con.execute(f"insert into track_lanes select {', '.join('l.' + c for c in LOCATED)}, "
-                                "t.drive_key, t.actor_key, t.row_key "
-                                "from _located as l inner join tracks as t on t.drive_id = l.drive_id "
-                                "and t.actor_id = l.actor_id and t.frame = l.frame "
-                                "order by t.drive_key, t.row_key, l.lane_id")
+            tables.insert(con, "tracks", staged)
+        with stage("localisation"):
+            located = locate_maps(_map_rows(staged, accepted, maps))
+        del staged
+        tables.insert(con, "track_lanes", located)
+        del located
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
             "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
@@ -453,6 +444,18 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.execute("rollback")
         raise
     return written
+
+
+def _map_rows(staged: pl.DataFrame, accepted: list, maps: dict[str, DriveData]) -> list:
+    """For each map, the rows of the batch's drives on it (slices of ``staged``, where each accepted drive's rows
+    follow the previous drive's) and its lanes."""
+    on_map: dict[str, list[pl.DataFrame]] = {m: [] for m in maps}
+    offset = 0
+    for drive, tracks, *_ in accepted:
+        if drive.map_id is not None:
+            on_map[drive.map_id].append(staged.slice(offset, tracks.height))
+        offset += tracks.height
+    return [(pl.concat(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
 
 
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
