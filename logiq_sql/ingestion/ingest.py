@@ -402,18 +402,18 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
     con.execute("begin transaction")
     try:
-        con.register("_drive_ids", ids)
-        con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
-        for table in schema.DRIVE_TABLE_NAMES:
-            con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-        # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
-        con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
-        _drop_outputs(con, ids["drive_id"].to_list())
-        # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
-        step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
-                                     "where map_id in (select map_id from _map_ids)")
-        for table in schema.MAP_TABLE_NAMES:
-            con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
+        with (registered(con, "_drive_ids", ids),
+              registered(con, "_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))):
+            for table in schema.DRIVE_TABLE_NAMES:
+                con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+            # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
+            con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
+            _drop_outputs(con, ids["drive_id"].to_list())
+            # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
+            step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
+                                         "where map_id in (select map_id from _map_ids)")
+            for table in schema.MAP_TABLE_NAMES:
+                con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive paid DuckDB's per-statement cost each time)
         for table in schema.MAP_TABLE_NAMES:
             _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
@@ -464,10 +464,9 @@ def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str
     keys = {d: schema.drive_key(d) for d in drive_ids}
     if len(set(keys.values())) < len(keys):
         raise InputError(f"two drives of this batch have the same drive_key: {sorted(keys)}. Fix: rename one.")
-    con.register("_new_keys", pl.DataFrame({"drive_id": list(keys), "drive_key": list(keys.values())}))
-    clash = con.execute("select n.drive_id, d.drive_id from _new_keys as n inner join drive_inputs as d "
-                        "on n.drive_key = d.drive_key and n.drive_id <> d.drive_id").fetchall()
-    con.unregister("_new_keys")
+    with registered(con, "_new_keys", pl.DataFrame({"drive_id": list(keys), "drive_key": list(keys.values())})):
+        clash = con.execute("select n.drive_id, d.drive_id from _new_keys as n inner join drive_inputs as d "
+                            "on n.drive_key = d.drive_key and n.drive_id <> d.drive_id").fetchall()
     if clash:
         raise InputError(f"drive '{clash[0][0]}' has the drive_key of drive '{clash[0][1]}' already in the file. "
                          "Fix: give one of them another drive_id.")
@@ -500,9 +499,9 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, [drive.drive_id])
-        con.register("_rejected", pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String}))
-        step_cache.set_versions(con, "select drive_id from _rejected")
-        con.unregister("_rejected")
+        rejected = pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String})
+        with registered(con, "_rejected", rejected):
+            step_cache.set_versions(con, "select drive_id from _rejected")
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
@@ -519,8 +518,7 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
     """A drive that is re-ingested or now rejected keeps no matches, and no kept relation tables, from an earlier
     run of its old data (drives, matches and relations would report them until the next match); the coverage
     histograms are recounted without its matches."""
-    con.register("_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String}))
-    try:
+    with registered(con, "_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String})):
         have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
         for table in (t for t in PERSISTED if t in have):  # kept whether or not the drive had matches
             con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
@@ -533,5 +531,3 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
                             "where drive_id in (select drive_id from _stale))")
         con.execute("delete from matches where drive_id in (select drive_id from _stale)")
         recount_coverage(con)
-    finally:
-        con.unregister("_stale")
