@@ -424,9 +424,11 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         with stage("kinematics"):
             raw = with_keys(pl.concat([t for _, t, *_ in accepted]), keys)
             with registered(con, "tracks_raw", raw):
-                staged = con.sql(query_text("staging/tracks.sql")).pl()
+                staged = con.sql(query_text("staging/tracks.sql")).to_arrow_table()
             del raw
-            tables.insert(con, "tracks", staged)
+            with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
+                con.execute("insert into tracks select * from _staged")
+            staged = pl.from_arrow(staged)
         with stage("localisation"):
             located = locate_maps(_map_rows(staged, accepted, maps))
         del staged
