@@ -8,7 +8,6 @@ import polars as pl
 
 from logiq_sql.core import schema
 
-
 # one empty frame per table, shared by every drive without rows of it: Polars frames are not changed in place (a
 # reader that fills one replaces it), and building a new one for each drive cost more than some readers' rows
 _EMPTY = {t.name: schema.empty(t) for t in (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)}
