@@ -126,7 +126,7 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
         # rows per drive in order of first row, and where each drive's last row is, without holding every row's
         # drive_id
         sizes = lazy.select("drive_id").with_row_index("_row").group_by("drive_id", maintain_order=True).agg(
-            pl.len().alias("len"), pl.col("_row").max().alias("last")).collect()
+            pl.len().alias("len"), pl.col("_row").min().alias("first"), pl.col("_row").max().alias("last")).collect()
     except pl.exceptions.PolarsError as exc:
         what = "Parquet file" if source_format == "parquet" else "frame"
         raise InputError(f"{tracks_where}: not a readable {what} ({type(exc).__name__}: {exc}).") from None
@@ -166,12 +166,14 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
 
 def _chunks(lazy: pl.LazyFrame, sizes: pl.DataFrame) -> Iterator[pl.DataFrame]:
     """The rows of whole drives, a few million at a time, reading the file once in its order: ``CHUNK_ROWS`` rows
-    are read at a time, and the drives whose last row (``sizes``: drive_id, len, last) has been read go out, the
-    rest wait for their remaining rows. When the drives are so interleaved that the waiting rows outgrow the bound,
-    the drives not yet given are read a few million rows at a time, each chunk one filtered scan of the file."""
+    are read at a time, and the drives whose last row (``sizes``: drive_id, len, first, last) has been read go out,
+    the rest wait for their remaining rows. When the drives are so interleaved that the waiting rows outgrow the
+    bound, the drives not yet given are read a few million rows at a time, each chunk one filtered scan of the part
+    of the file between its drives' first and last rows."""
     total = int(sizes["len"].sum())
     by_last = sizes.sort("last")
-    bound = 2 * CHUNK_ROWS + int(sizes["len"].max())  # the rows waiting, besides those that go out
+    # the rows that may wait besides the chunk read: a chunk's worth, or more for a drive larger than a chunk
+    bound = CHUNK_ROWS + int(sizes["len"].max())
     waiting = lazy.head(0).collect()
     done = 0  # drives given, in order of their last row
     for start in range(0, total, CHUNK_ROWS):
@@ -191,8 +193,11 @@ def _chunks(lazy: pl.LazyFrame, sizes: pl.DataFrame) -> Iterator[pl.DataFrame]:
         return
     del waiting
     rest = sizes.filter(pl.col("drive_id").is_in(by_last["drive_id"].slice(done).implode()))
+    span = dict(zip(rest["drive_id"], zip(rest["first"], rest["last"], strict=True), strict=True))
     for chunk_ids in batches(rest.select("drive_id", "len").iter_rows(), CHUNK_ROWS):
-        yield lazy.filter(pl.col("drive_id").is_in(chunk_ids)).collect()
+        # only the rows between the chunk's first and last row are scanned
+        first, last = min(span[d][0] for d in chunk_ids), max(span[d][1] for d in chunk_ids)
+        yield lazy.slice(first, last - first + 1).filter(pl.col("drive_id").is_in(chunk_ids)).collect()
 
 
 # the drives of a chunk are cast and split this many rows at a time: one cast of many drives instead of one per
