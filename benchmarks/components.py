@@ -1,6 +1,7 @@
 """What the pipeline's unavoidable parts cost on their own, as ratios to the floor measured in the same run.
 
     python -m benchmarks.components --tier M      # after `make bench TIER=M` wrote benchmarks/work/M/parquet
+    python -m benchmarks.components --tier M --ingest   # also logiq_sql's ingest of it, against its own parts
 
 Each part is the least a pipeline of this kind must do, written as one plain DuckDB statement over the tier's
 tracks.parquet with nothing of logiq_sql around it but its constants (the static kinds, the chunk size);
@@ -16,7 +17,12 @@ localisation is logiq_sql.ingestion.localise's look-up over it and lanes.parquet
                    beside it: the cheapest pairing measured, benchmarks/README.md)
     localisation   every moving row's lanes within 3 m, with distance and heading difference: ingest's own
                    look-up (logiq_sql.ingestion.localise, compiled: its index built per map, then the pairs as arrays), no
-                   rows written; both cores (a thread each over half of a map's rows)
+                   rows written; both cores (a thread each over half of a map's rows); the rows are read from the
+                   Parquet before the clock starts (reading them is the floor's part)
+
+With --ingest each round also times logiq_sql's whole ingest of the same Parquet (read, checks, kinematics,
+keys, localisation, writing) and compares it with the sum of its own parts: floor (the read), window, write and
+localisation, wall and CPU seconds.
 
 The sum of these parts says how far any design of the pipeline could get: the issue-15 targets are 40x the floor
 end to end (which holds every part) and 3 M rows/s re-matching (which holds the pair join, not the rest).
@@ -37,6 +43,8 @@ import numpy as np
 import polars as pl
 
 from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
+from logiq_sql.core.timing import cpu_seconds
+from logiq_sql.ingestion.ingest import ingest
 from logiq_sql.ingestion.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
 
 PARTS = {
@@ -78,9 +86,8 @@ def pair_count(index: LaneIndex, x: np.ndarray, y: np.ndarray, heading: np.ndarr
                for a in range(0, len(x), CHUNK_POINTS))
 
 
-def localisation(path: Path) -> int:
-    """The localisation part: every moving row's lanes, map by map (the index built per map), the rows of a map
-    split between two threads; the (row, lane) pairs counted."""
+def map_rows(path: Path) -> list[tuple[pl.DataFrame, np.ndarray, np.ndarray, np.ndarray]]:
+    """Each map's lanes and the x, y and heading of its drives' moving rows (read before the clock starts)."""
     parquet = path.parent
     with duckdb.connect() as con:
         rows = con.sql("""
@@ -90,53 +97,105 @@ def localisation(path: Path) -> int:
             params={"tracks": str(path), "drives": str(parquet / "drives.parquet"),
                     "static_kinds": list(STATIC_KINDS)}).pl()
     lanes = pl.read_parquet(parquet / "lanes.parquet", columns=["map_id", "lane_id", "polygon_wkt", "centerline_wkt"])
+    out = []
+    for (map_id,), on_map in rows.partition_by("map_id", as_dict=True, maintain_order=True).items():
+        on_lanes = lanes.filter(pl.col("map_id") == map_id)
+        if not on_lanes.is_empty():
+            out.append((on_lanes, *(on_map[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))))
+    return out
+
+
+def localisation(path: Path) -> int:
+    """The (row, lane) pairs of the localisation part over the tier's Parquet."""
+    return look_up(map_rows(path))
+
+
+def look_up(maps: list) -> int:
+    """The localisation part: every moving row's lanes, map by map (the index built per map: counted), the rows of
+    a map split between two threads; the (row, lane) pairs counted."""
     total = 0
     with ThreadPoolExecutor(2) as pool:
-        for (map_id,), on_map in rows.partition_by("map_id", as_dict=True, maintain_order=True).items():
-            on_lanes = lanes.filter(pl.col("map_id") == map_id)
-            if on_lanes.is_empty():
-                continue
-            index = LaneIndex(on_lanes)
-            x, y, h = (on_map[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))
+        for lanes, x, y, h in maps:
+            index = LaneIndex(lanes)
             half = len(x) // 2
             total += sum(pool.map(pair_count, [index, index], [x[:half], x[half:]], [y[:half], y[half:]],
                                   [h[:half], h[half:]]))
     return total
 
 
-def measure(path: Path) -> dict[str, float]:
+def timed(fn) -> tuple[float, float]:
+    """Wall and CPU seconds (every thread of the process) of ``fn()``."""
+    start, cpu = time.perf_counter(), cpu_seconds()
+    fn()
+    return time.perf_counter() - start, cpu_seconds() - cpu
+
+
+def measure(path: Path, cpu: dict[str, float] | None = None) -> dict[str, float]:
+    """Wall seconds of each part (and their CPU seconds into ``cpu``)."""
     seconds: dict[str, float] = {}
+    cpu = {} if cpu is None else cpu
     for name, sql in PARTS.items():
         with tempfile.TemporaryDirectory() as tmp, duckdb.connect(str(Path(tmp) / "part.duckdb")) as con:
-            start = time.perf_counter()
-            con.execute(sql, {"path": str(path)}).fetchall()
-            seconds[name] = time.perf_counter() - start
-    start = time.perf_counter()
-    localisation(path)
-    seconds["localisation"] = time.perf_counter() - start
+            seconds[name], cpu[name] = timed(lambda con=con, sql=sql: con.execute(sql, {"path": str(path)}).fetchall())
+    maps = map_rows(path)
+    seconds["localisation"], cpu["localisation"] = timed(lambda: look_up(maps))
     return seconds
+
+
+# ingest's own parts: the read of the Parquet (the floor's scan), the window its kinematics need, the write of the
+# tracks and the lane look-up
+INGEST_PARTS = ("floor", "window", "write", "localisation")
+
+
+def ingest_once(path: Path) -> tuple[float, float]:
+    """Wall and CPU seconds of logiq_sql's ingest of the tier's Parquet folder into a new file (with localisation)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return timed(lambda: ingest("parquet", [path.parent], Path(tmp) / "ingest.duckdb"))
 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tier", default="M")
+    parser.add_argument("--ingest", action="store_true",
+                        help="also time logiq_sql's ingest of the same Parquet in each round, against its parts")
     args = parser.parse_args(argv)
     path = WORK / args.tier / "parquet" / "tracks.parquet"
     if not path.exists():
         raise SystemExit(f"{path} not found: run `make bench TIER={args.tier}` first.")
-    first = measure(path)
-    second = measure(path)
-    seconds = {k: min(first[k], second[k]) for k in first}  # the faster of two rounds, as for the floor
+    rounds = []
+    for _ in range(2):
+        cpu: dict[str, float] = {}
+        wall = measure(path, cpu)
+        if args.ingest:
+            wall["ingest"], cpu["ingest"] = ingest_once(path)
+        rounds.append((wall, cpu))
+    # the faster of two rounds, as for the floor
+    seconds = {k: min(r[0][k] for r in rounds) for k in rounds[0][0]}
+    cpus = {k: min(r[1][k] for r in rounds) for k in rounds[0][1]}
     floor = seconds["floor"]
-    parts = {k: {"seconds": v, "ratio_to_floor": v / floor} for k, v in seconds.items()}
+    parts = {k: {"seconds": v, "cpu_seconds": cpus[k], "ratio_to_floor": v / floor}
+             for k, v in seconds.items() if k != "ingest"}
     report = {"tier": args.tier, "parts": parts,
               "sum_ratio_to_floor": sum(p["ratio_to_floor"] for k, p in parts.items() if k != "floor"),
               "measured_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     lines = [f"# Tier {args.tier}: the pipeline's unavoidable parts alone", "",
-             "| part | wall s | x floor |", "|---|---:|---:|"]
-    lines += [f"| {k} | {p['seconds']:.2f} | {p['ratio_to_floor']:.1f} |" for k, p in parts.items()]
+             "| part | wall s | x floor | CPU s |", "|---|---:|---:|---:|"]
+    lines += [f"| {k} | {p['seconds']:.2f} | {p['ratio_to_floor']:.1f} | {p['cpu_seconds']:.2f} |"
+              for k, p in parts.items()]
     lines += ["", f"Sum of the parts other than the floor: **{report['sum_ratio_to_floor']:.1f}x the floor** "
               f"(measured {report['measured_at']})."]
+    if args.ingest:
+        rows = pl.scan_parquet(path).select(pl.len()).collect().item()
+        own = {"seconds": sum(seconds[k] for k in INGEST_PARTS), "cpu_seconds": sum(cpus[k] for k in INGEST_PARTS)}
+        report["ingest"] = {"seconds": seconds["ingest"], "cpu_seconds": cpus["ingest"], "rows": rows,
+                            "rows_per_s": rows / seconds["ingest"], "parts": own,
+                            "ratio_to_parts": seconds["ingest"] / own["seconds"],
+                            "cpu_ratio_to_parts": cpus["ingest"] / own["cpu_seconds"]}
+        r = report["ingest"]
+        lines += ["", f"**Ingest with localisation** (logiq_sql, the same Parquet, each round): {r['seconds']:.2f} s "
+                  f"({r['rows_per_s']:,.0f} rows/s), CPU {r['cpu_seconds']:.2f} s; its parts "
+                  f"({' + '.join(INGEST_PARTS)}) {own['seconds']:.2f} s, CPU {own['cpu_seconds']:.2f} s: **{r['ratio_to_parts']:.2f}x its parts** "
+                  f"(CPU {r['cpu_ratio_to_parts']:.2f}x)."]
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.tier}_components.json").write_text(json.dumps(report, indent=2))
     (RESULTS / f"{args.tier}_components.md").write_text("\n".join(lines) + "\n")

@@ -21,7 +21,7 @@ from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import locate
+from logiq_sql.ingestion.localise import locate_maps
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -63,7 +63,6 @@ def expand(fmt: str, paths: Iterable[str | Path]) -> list[Path]:
     return list(dict.fromkeys(out))  # a file named twice (itself and through its folder) is read once
 
 
-LOCATED = schema.TRACK_LANES.column_names  # what locate gives, in track_lanes' order (its keys follow)
 BATCH_ROWS = 1_000_000  # drives are written in batches of about this many track rows (bounded memory)
 INGEST_DUCKDB_SHARE = 0.5  # of LOGIQ_SQL_MEMORY_LIMIT, for DuckDB while ingesting (db.share_memory)
 
@@ -403,44 +402,38 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
     con.execute("begin transaction")
     try:
-        con.register("_drive_ids", ids)
-        con.register("_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))
-        for table in schema.DRIVE_TABLE_NAMES:
-            con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-        # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
-        con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
-        _drop_outputs(con, ids["drive_id"].to_list())
-        # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
-        step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
-                                     "where map_id in (select map_id from _map_ids)")
-        for table in schema.MAP_TABLE_NAMES:
-            con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
+        with (registered(con, "_drive_ids", ids),
+              registered(con, "_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))):
+            for table in schema.DRIVE_TABLE_NAMES:
+                con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+            # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
+            con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
+            _drop_outputs(con, ids["drive_id"].to_list())
+            # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
+            step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
+                                         "where map_id in (select map_id from _map_ids)")
+            for table in schema.MAP_TABLE_NAMES:
+                con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive paid DuckDB's per-statement cost each time)
         for table in schema.MAP_TABLE_NAMES:
             _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
         _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])
+        # one ordered pass over the batch: its rows (each drive's sorted by actor_id, frame: clean_batch) with their
+        # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and
+        # localised as it is (no read back from the file)
         with stage("kinematics"):
-            # each drive's rows are sorted by (actor_id, frame) (clean_tracks): staging's windows run over that
-            # order, a track being the rows of one track_no; written once, into tracks
-            raw = pl.concat([t for _, t, *_ in accepted])
-            with registered(con, "tracks_raw", with_keys(raw, keys)):
-                con.execute("insert into tracks " + query_text("staging/tracks.sql"))
+            raw = with_keys(pl.concat([t for _, t, *_ in accepted]), keys)
+            with registered(con, "tracks_raw", raw):
+                staged = con.sql(query_text("staging/tracks.sql")).to_arrow_table()
             del raw
-        for map_id, drive in maps.items():
-            on_map = [d.drive_id for d, *_ in accepted if d.map_id == map_id]
-            con.register("_on_map", pl.DataFrame({"drive_id": on_map}))
-            staged = con.sql("select drive_id, actor_id, kind, frame, x_m, y_m, heading_rad from tracks "
-                             "where drive_id in (select drive_id from _on_map)").pl()
-            with stage("localisation"):
-                located = locate(staged, drive.lanes)
-            if not located.is_empty():
-                # the row's keys from tracks, stored in (drive, actor, frame) order as tracks are
-                with registered(con, "_located", located):
-                    con.execute(f"insert into track_lanes select {', '.join('l.' + c for c in LOCATED)}, "
-                                "t.drive_key, t.actor_key, t.row_key "
-                                "from _located as l inner join tracks as t on t.drive_id = l.drive_id "
-                                "and t.actor_id = l.actor_id and t.frame = l.frame "
-                                "order by t.drive_key, t.row_key, l.lane_id")
+            with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
+                con.execute("insert into tracks select * from _staged")
+            staged = pl.from_arrow(staged)
+        with stage("localisation"):
+            located = locate_maps(_map_rows(staged, accepted, maps))
+        del staged
+        tables.insert(con, "track_lanes", located)
+        del located
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
             "map_id": d.map_id, "dt_s": d.dt_s, "ego_actor_id": d.ego_actor_id,
@@ -455,16 +448,27 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     return written
 
 
+def _map_rows(staged: pl.DataFrame, accepted: list, maps: dict[str, DriveData]) -> list:
+    """For each map, the rows of the batch's drives on it (slices of ``staged``, where each accepted drive's rows
+    follow the previous drive's) and its lanes."""
+    on_map: dict[str, list[pl.DataFrame]] = {m: [] for m in maps}
+    offset = 0
+    for drive, tracks, *_ in accepted:
+        if drive.map_id is not None:
+            on_map[drive.map_id].append(staged.slice(offset, tracks.height))
+        offset += tracks.height
+    return [(pl.concat(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
+
+
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
     """``drive_key`` of each drive; refuses a key another drive of the file already has (two digests alike,
     about one chance in 10^10 among a million drives): joining on it would mix the two drives."""
     keys = {d: schema.drive_key(d) for d in drive_ids}
     if len(set(keys.values())) < len(keys):
         raise InputError(f"two drives of this batch have the same drive_key: {sorted(keys)}. Fix: rename one.")
-    con.register("_new_keys", pl.DataFrame({"drive_id": list(keys), "drive_key": list(keys.values())}))
-    clash = con.execute("select n.drive_id, d.drive_id from _new_keys as n inner join drive_inputs as d "
-                        "on n.drive_key = d.drive_key and n.drive_id <> d.drive_id").fetchall()
-    con.unregister("_new_keys")
+    with registered(con, "_new_keys", pl.DataFrame({"drive_id": list(keys), "drive_key": list(keys.values())})):
+        clash = con.execute("select n.drive_id, d.drive_id from _new_keys as n inner join drive_inputs as d "
+                            "on n.drive_key = d.drive_key and n.drive_id <> d.drive_id").fetchall()
     if clash:
         raise InputError(f"drive '{clash[0][0]}' has the drive_key of drive '{clash[0][1]}' already in the file. "
                          "Fix: give one of them another drive_id.")
@@ -497,9 +501,9 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, [drive.drive_id])
-        con.register("_rejected", pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String}))
-        step_cache.set_versions(con, "select drive_id from _rejected")
-        con.unregister("_rejected")
+        rejected = pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String})
+        with registered(con, "_rejected", rejected):
+            step_cache.set_versions(con, "select drive_id from _rejected")
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": drive.drive_id, "source_format": drive.source_format, "source_path": drive.source_path,
             "map_id": drive.map_id, "dt_s": drive.dt_s if drive.dt_s and math.isfinite(drive.dt_s) else None,
@@ -516,8 +520,7 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
     """A drive that is re-ingested or now rejected keeps no matches, and no kept relation tables, from an earlier
     run of its old data (drives, matches and relations would report them until the next match); the coverage
     histograms are recounted without its matches."""
-    con.register("_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String}))
-    try:
+    with registered(con, "_stale", pl.DataFrame({"drive_id": drive_ids}, schema={"drive_id": pl.String})):
         have = {r[0] for r in con.execute("select table_name from duckdb_tables() where not temporary").fetchall()}
         for table in (t for t in PERSISTED if t in have):  # kept whether or not the drive had matches
             con.execute(f"delete from {table} where drive_id in (select drive_id from _stale)")
@@ -530,5 +533,3 @@ def _drop_outputs(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> None:
                             "where drive_id in (select drive_id from _stale))")
         con.execute("delete from matches where drive_id in (select drive_id from _stale)")
         recount_coverage(con)
-    finally:
-        con.unregister("_stale")

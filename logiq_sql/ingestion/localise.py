@@ -312,21 +312,37 @@ def _locate(x, y, heading, start, reach, grid, cell_first, cell_lanes, box, open
 
 def locate(tracks: pl.DataFrame, lanes: pl.DataFrame, index: LaneIndex | None = None) -> pl.DataFrame:
     """Rows of ``track_lanes`` for ``tracks`` (drives on one map) against ``lanes`` (that map)."""
-    moving = tracks.filter(~pl.col("kind").is_in(STATIC_KINDS)) if "kind" in tracks.columns else tracks
-    if moving.is_empty() or lanes.is_empty():
+    return locate_maps([(tracks, lanes, index)])
+
+
+def locate_maps(parts: list[tuple[pl.DataFrame, pl.DataFrame, LaneIndex | None]]) -> pl.DataFrame:
+    """Rows of ``track_lanes`` for each (tracks of drives on one map, that map's lanes, its index or None to build
+    it), in the order given, every map's chunks on one thread pool. Each pair carries the row's drive_id, actor_id
+    and frame, and its integer keys (schema.TRACK_KEYS) when ``tracks`` has them."""
+    work = []
+    for tracks, lanes, index in parts:
+        moving = tracks.filter(~pl.col("kind").is_in(STATIC_KINDS)) if "kind" in tracks.columns else tracks
+        if not (moving.is_empty() or lanes.is_empty()):
+            work.append((moving, lanes, index))
+    if not work:
         return schema.empty(schema.TRACK_LANES)
-    index = index or LaneIndex(lanes)
+    carry = [c for c in (*schema.TRACK_LANES.column_names[:3], *(k.name for k in schema.TRACK_KEYS))
+             if c in work[0][0].columns]
+    out_schema = {c: (schema.STORED_TRACK_LANES.polars_schema[c]) for c in carry}
 
-    size = min(CHUNK_POINTS, max(MIN_CHUNK_POINTS, -(-moving.height // WORKERS)))  # every worker busy
-
-    def chunk_lanes(start: int) -> pl.DataFrame:
+    def chunk_lanes(task) -> pl.DataFrame:
+        moving, index, start, size = task
         chunk = moving.slice(start, size)
         row, lane, dist, diff = index.locate(chunk["x_m"].to_numpy(), chunk["y_m"].to_numpy(),
                                              chunk["heading_rad"].to_numpy())
-        return chunk.select(pl.col("drive_id", "actor_id", "frame").gather(row)).with_columns(
+        return chunk.select(pl.col(carry).gather(row)).with_columns(
             lane_id=index.lane_ids.gather(lane), dist_m=pl.Series(dist), heading_diff_rad=pl.Series(diff),
-        ).cast(schema.TRACK_LANES.polars_schema)
+        ).select(*schema.TRACK_LANES.column_names, *carry[3:]).cast(out_schema | schema.TRACK_LANES.polars_schema)
 
     with ThreadPoolExecutor(WORKERS) as pool:
-        parts = list(pool.map(chunk_lanes, range(0, moving.height, size)))
-    return pl.concat(parts) if parts else schema.empty(schema.TRACK_LANES)
+        indexes = list(pool.map(lambda w: w[2] or LaneIndex(w[1]), work))
+        rows = sum(moving.height for moving, *_ in work)
+        size = min(CHUNK_POINTS, max(MIN_CHUNK_POINTS, -(-rows // WORKERS)))  # every worker busy
+        tasks = [(moving, index, start, size) for (moving, *_), index in zip(work, indexes, strict=True)
+                 for start in range(0, moving.height, size)]
+        return pl.concat(pool.map(chunk_lanes, tasks))

@@ -1,7 +1,8 @@
 """Ingest's checks (``ingestion.clean_batch``, one set of rules over a batch of any size) and the Parquet reader's
 one cast per chunk (``readers.parquet._drives_at_once``): a batch gives exactly what each drive alone gives, and the
 reader what casting drive by drive gives: the same drives, rows, counts and messages, for a batch mixing good
-drives with every kind of bad one.
+drives with every kind of bad one. The reader reads the file once, in its order, whatever the chunk size, and
+gives what one chunk of the whole file gives, also when the drives' rows are interleaved.
 """
 
 from __future__ import annotations
@@ -123,6 +124,51 @@ def test_the_reader_casts_each_chunk_as_it_cast_each_drive(tmp_path, monkeypatch
     same_drives(got, want)
     assert {d.drive_id for d in want if d.reject_reason} == {"two_egos", "bad_period", "listed_only"}
     assert len(want) == len(periods)
+
+
+def read_in_chunks(folder: Path, monkeypatch: pytest.MonkeyPatch, rows: int) -> tuple[list, list[str]]:
+    """The drives read with chunks of ``rows`` rows (sorted by drive_id), and the plans of the reader's reads of
+    the tracks file."""
+    plans = []
+    real_collect = pl.LazyFrame.collect
+
+    def collect(self, *args, **kwargs):
+        plan = self.explain()
+        if "Parquet SCAN" in plan:
+            plans.append(plan)
+        return real_collect(self, *args, **kwargs)
+
+    monkeypatch.setattr(parquet, "CHUNK_ROWS", rows)
+    monkeypatch.setattr(pl.LazyFrame, "collect", collect)
+    drives = sorted(parquet.read_parquet(folder), key=lambda d: d.drive_id)
+    monkeypatch.undo()
+    return drives, plans
+
+
+@pytest.mark.parametrize("frame", [False, True])
+def test_the_reader_reads_the_file_once_in_chunks_of_any_size(tmp_path, monkeypatch, frame):
+    tracks, periods = mixed(frame)
+    folder = write(tmp_path / "in", tracks, periods)
+    whole, _ = read_in_chunks(folder, monkeypatch, tracks.height)
+    for rows in (150, 333):  # chunk boundaries inside drives; the alternating drives wait for each other
+        got, plans = read_in_chunks(folder, monkeypatch, rows)
+        same_drives(got, whole)
+        reads = [p for p in plans if "PROJECT 1/" not in p]  # besides one pass over drive_id
+        assert len(reads) == -(-tracks.height // rows), "the file is read in its order, a chunk at a time"
+        assert all("SLICE" in p and "SELECTION" not in p for p in reads), "never scanned whole for a chunk"
+    got, _ = read_in_chunks(folder, monkeypatch, 7)  # the alternating drives outgrow what may wait: scanned for
+    same_drives(got, whole)
+
+
+def test_drives_too_interleaved_to_wait_for_are_read_by_filtered_scans(tmp_path, monkeypatch):
+    """Rows dealt to the drives in turn: waiting for whole drives would hold the file, so the reader scans for
+    the rest (memory stays bounded) and gives the same drives."""
+    tracks = pl.concat([scene(f"d{i}").with_row_index("_i") for i in range(6)]).sort("_i", maintain_order=True)
+    folder = write(tmp_path / "in", tracks.drop("_i"), {f"d{i}": 0.1 for i in range(6)})
+    whole, _ = read_in_chunks(folder, monkeypatch, tracks.height)
+    got, plans = read_in_chunks(folder, monkeypatch, 10)
+    same_drives(got, whole)
+    assert any("SELECTION" in p for p in plans)
 
 
 def test_a_value_that_does_not_convert_still_yields_the_drives_before_it(tmp_path, monkeypatch):

@@ -8,6 +8,10 @@ import polars as pl
 
 from logiq_sql.core import schema
 
+# one empty frame per table, shared by every drive without rows of it: Polars frames are not changed in place (a
+# reader that fills one replaces it), and building a new one for each drive cost more than some readers' rows
+_EMPTY = {t.name: schema.empty(t) for t in (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)}
+
 
 @dataclass
 class DriveData:
@@ -33,13 +37,11 @@ class DriveData:
     dt_s: float
     tracks: pl.DataFrame
     map_id: str | None = None
-    lanes: pl.DataFrame = field(default_factory=lambda: schema.empty(schema.LANES))
-    lane_successors: pl.DataFrame = field(default_factory=lambda: schema.empty(schema.LANE_SUCCESSORS))
-    junctions: pl.DataFrame = field(default_factory=lambda: schema.empty(schema.JUNCTIONS))
-    traffic_lights: pl.DataFrame = field(default_factory=lambda: schema.empty(schema.TRAFFIC_LIGHTS))
-    traffic_light_states: pl.DataFrame = field(
-        default_factory=lambda: schema.empty(schema.TRAFFIC_LIGHT_STATES)
-    )
+    lanes: pl.DataFrame = field(default_factory=lambda: _EMPTY["lanes"])
+    lane_successors: pl.DataFrame = field(default_factory=lambda: _EMPTY["lane_successors"])
+    junctions: pl.DataFrame = field(default_factory=lambda: _EMPTY["junctions"])
+    traffic_lights: pl.DataFrame = field(default_factory=lambda: _EMPTY["traffic_lights"])
+    traffic_light_states: pl.DataFrame = field(default_factory=lambda: _EMPTY["traffic_light_states"])
     ego_actor_id: str | None = None
     rows_read: int = 0
     rows_rejected: int = 0

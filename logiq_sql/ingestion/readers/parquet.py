@@ -60,9 +60,8 @@ def check_table(frame: pl.DataFrame, table: schema.Table, path: str | Path,
 
 
 # drives are read from the file a few million rows at a time (a drive is never split): memory stays bounded on
-# large files whatever the drives' sizes (a fixed count of drives at a time can be any number of rows); each chunk
-# is one filtered scan of the file, so chunks are not smaller than they need to be: this size keeps the reader's
-# peak well inside the memory bound for the same time, a smaller one costs more CPU (benchmarks/README.md)
+# large files whatever the drives' sizes (a fixed count of drives at a time can be any number of rows); this size
+# keeps the reader's peak well inside the memory bound, a smaller one costs more CPU (benchmarks/README.md)
 CHUNK_ROWS = 2_000_000
 
 
@@ -124,8 +123,10 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
     parts = {name: _Parts(frame, "drive_id" if name == "traffic_light_states" else "map_id")
              for name, frame in maps.items()}
     try:
-        # rows per drive in file order, without holding every row's drive_id
-        sizes = lazy.group_by("drive_id", maintain_order=True).len().collect()
+        # rows per drive in order of first row, and where each drive's last row is, without holding every row's
+        # drive_id
+        sizes = lazy.select("drive_id").with_row_index("_row").group_by("drive_id", maintain_order=True).agg(
+            pl.len().alias("len"), pl.col("_row").min().alias("first"), pl.col("_row").max().alias("last")).collect()
     except pl.exceptions.PolarsError as exc:
         what = "Parquet file" if source_format == "parquet" else "frame"
         raise InputError(f"{tracks_where}: not a readable {what} ({type(exc).__name__}: {exc}).") from None
@@ -145,8 +146,7 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
                         reject_reason=f"{tracks_where}: drive '{drive_id}' is listed in {Path(drives_where).name} but "
                                       f"has no track rows. Fix: add its rows to {Path(tracks_where).name} or remove "
                                       f"it from {Path(drives_where).name}.")
-    for chunk_ids in batches(sizes.iter_rows(), CHUNK_ROWS):
-        chunk = lazy.filter(pl.col("drive_id").is_in(chunk_ids)).collect()
+    for chunk in _chunks(lazy, sizes):
         in_chunk = chunk.group_by("drive_id", maintain_order=True).len()
         # the drives of a chunk are checked and cast a million rows at a time (memory stays that of a chunk)
         for part_ids in batches(in_chunk.iter_rows(), SPLIT_ROWS):
@@ -162,6 +162,42 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
             while drives:  # each drive's rows go once the caller is done with them
                 yield drives.pop()
         del chunk
+
+
+def _chunks(lazy: pl.LazyFrame, sizes: pl.DataFrame) -> Iterator[pl.DataFrame]:
+    """The rows of whole drives, a few million at a time, reading the file once in its order: ``CHUNK_ROWS`` rows
+    are read at a time, and the drives whose last row (``sizes``: drive_id, len, first, last) has been read go out,
+    the rest wait for their remaining rows. When the drives are so interleaved that the waiting rows outgrow the
+    bound, the drives not yet given are read a few million rows at a time, each chunk one filtered scan of the part
+    of the file between its drives' first and last rows."""
+    total = int(sizes["len"].sum())
+    by_last = sizes.sort("last")
+    # the rows that may wait besides the chunk read: a chunk's worth, or more for a drive larger than a chunk
+    bound = CHUNK_ROWS + int(sizes["len"].max())
+    waiting = lazy.head(0).collect()
+    done = 0  # drives given, in order of their last row
+    for start in range(0, total, CHUNK_ROWS):
+        waiting = pl.concat([waiting, lazy.slice(start, CHUNK_ROWS).collect()])
+        ready = by_last["drive_id"].slice(done).filter(by_last["last"].slice(done) < start + CHUNK_ROWS)
+        done += ready.len()
+        if ready.len():
+            if done == by_last.height:
+                yield waiting
+                return
+            go = pl.col("drive_id").is_in(ready.implode())
+            yield waiting.filter(go)
+            waiting = waiting.filter(~go)
+        if waiting.height > bound:
+            break
+    else:
+        return
+    del waiting
+    rest = sizes.filter(pl.col("drive_id").is_in(by_last["drive_id"].slice(done).implode()))
+    span = dict(zip(rest["drive_id"], zip(rest["first"], rest["last"], strict=True), strict=True))
+    for chunk_ids in batches(rest.select("drive_id", "len").iter_rows(), CHUNK_ROWS):
+        # only the rows between the chunk's first and last row are scanned
+        first, last = min(span[d][0] for d in chunk_ids), max(span[d][1] for d in chunk_ids)
+        yield lazy.slice(first, last - first + 1).filter(pl.col("drive_id").is_in(chunk_ids)).collect()
 
 
 # the drives of a chunk are cast and split this many rows at a time: one cast of many drives instead of one per
