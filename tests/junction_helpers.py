@@ -6,7 +6,8 @@ phases of a scenario can be worked out by hand from the kinematics.
     S_in   northbound approach, x in [0, 3.5], y < -10          N_in   southbound approach, x in [-3.5, 0], y > 10
     J_SN   S_in -> N_out (straight)                             J_NS   N_in -> S_out (straight)
     J_SW   S_in -> W_out (left): quarter circle about (-10, -10), radius 11.75, from (1.75, -10) to (-10, 1.75)
-    N_out, S_out, W_out  exits
+    W_in   eastbound approach in the outer lane, y = -5.25, x < -10; J_WE its straight path, to E_out (no light)
+    N_out, S_out, W_out, E_out  exits
 """
 
 from __future__ import annotations
@@ -50,10 +51,13 @@ LANES = [
     _lane("J_SN", shapely.LineString([(1.75, -10), (1.75, 10)]), "J"),
     _lane("J_NS", shapely.LineString([(-1.75, 10), (-1.75, -10)]), "J"),
     _lane("J_SW", shapely.LineString(left_arc()), "J"),
+    _lane("W_in", shapely.LineString([(-200, -5.25), (-10, -5.25)])),
+    _lane("J_WE", shapely.LineString([(-10, -5.25), (10, -5.25)]), "J"),
+    _lane("E_out", shapely.LineString([(10, -5.25), (200, -5.25)])),
 ]
 SUCCESSORS = [
     ("S_in", "J_SN", "straight"), ("S_in", "J_SW", "left"), ("J_SN", "N_out", None), ("J_SW", "W_out", None),
-    ("N_in", "J_NS", "straight"), ("J_NS", "S_out", None),
+    ("N_in", "J_NS", "straight"), ("J_NS", "S_out", None), ("W_in", "J_WE", "straight"), ("J_WE", "E_out", None),
 ]
 
 
@@ -68,6 +72,8 @@ def path_positions(s: np.ndarray, route: str) -> tuple[np.ndarray, np.ndarray]:
         return x, np.where(beyond, 1.75, y)
     if route == "N_straight":
         return np.full_like(s, -1.75), 10 - s
+    if route == "W_straight":
+        return -10 + s, np.full_like(s, -5.25)
     raise ValueError(route)
 
 

@@ -14,9 +14,11 @@ internal-lane shapes swept by the vType widths):
 - *crossed*: A's rear leaves the conflict area before E's front reaches it (FCD lane position, vType length);
 - *set-off*: E's turn starts the step after its last standstill (speed <= ``stopping_car_speed_limit``) before
   its front reaches the conflict area;
-- *the one it waited for*: A is the last actor to leave E's path before the set-off (or left it at most
-  ``max_gap`` before that one: two lanes of oncoming traffic passing together), or it leaves it after the set-off
-  (E rolls while A clears): every other actor crossed earlier and E kept standing after it;
+- *the one it waited for*: A is the last actor to leave E's path of those whose front had reached it by the
+  set-off (E sets off as the vehicle it waited for clears its path), or left it at most ``max_gap`` before that
+  one (two lanes of oncoming traffic passing together), or it leaves it after the set-off (E rolls while A
+  clears) and E does not stand again for another vehicle afterwards: every other actor crossed earlier and E
+  kept standing after it;
 - *at a green*: E stood with its front within [``min_offset_from_junction_start``,
   ``max_offset_from_junction_start``] of the stop line and at most ``max_offset_from_traffic_light`` before it,
   its link's signal green (``tls_states``: ``G``/``g``), while A was approaching (A's front past
@@ -98,10 +100,14 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
     actor_out = (pairs.select("actor_id", "leave_m_f", "length_m_f").unique().join(actor_rows, on="actor_id")
                  .filter(pl.col("front_f") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out=pl.col("frame").min()))
+    actor_in = (pairs.select("actor_id", "enter_m_f").unique().join(actor_rows, on="actor_id")
+                .filter(pl.col("front_f") >= pl.col("enter_m_f") - EPS)
+                .group_by("actor_id", "enter_m_f").agg(actor_in=pl.col("frame").min()))
     actor_entry = (actors.select("actor_id").join(actor_rows, on="actor_id").filter(pl.col("front_f") >= 0)
                    .group_by("actor_id").agg(actor_entry=pl.col("frame").min()))
     pairs = (pairs.join(ego_in, on=["ego_id", "enter_m"], how="left")
              .join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"], how="left")
+             .join(actor_in, on=["actor_id", "enter_m_f"], how="left")
              .join(actor_entry, on="actor_id", how="left")
              .with_columns(crossed=pl.col("actor_out").is_not_null() & pl.col("ego_in").is_not_null()
                            & (pl.col("actor_out") <= pl.col("ego_in"))))
@@ -111,12 +117,15 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
                .filter(pl.col("frame") < pl.col("ego_in"))
                .group_by("ego_id", "ego_in").agg(set_off=pl.col("frame").max() + 1))
     pairs = pairs.join(set_off, on=["ego_id", "ego_in"], how="left")
-    # the last actor to leave E's path before the set-off (over all of E's conflicts)
-    last_before = (pairs.filter(pl.col("crossed") & (pl.col("actor_out") <= pl.col("set_off")))
-                   .group_by("ego_id").agg(last_out=pl.col("actor_out").max()))
+    # the last actor to leave E's path of those whose front had reached it when E set off (over all of E's
+    # conflicts): E sets off as the vehicle it waited for clears its path
+    # (and E's latest set-off over them: a vehicle that clears E's path after E set off counts only if E does not
+    # stand again afterwards for another one, as when E rolls into the junction behind a straggler and waits there)
+    last_before = (pairs.filter(pl.col("crossed") & (pl.col("actor_in") <= pl.col("set_off")))
+                   .group_by("ego_id").agg(last_out=pl.col("actor_out").max(), last_set_off=pl.col("set_off").max()))
     pairs = pairs.join(last_before, on="ego_id", how="left").with_columns(
         waited_for=pl.col("crossed") & pl.col("set_off").is_not_null()
-        & ((pl.col("actor_out") > pl.col("set_off"))
+        & (((pl.col("actor_out") > pl.col("set_off")) & (pl.col("actor_out") >= pl.col("last_set_off").fill_null(pl.col("set_off"))))
            | (pl.col("actor_out") >= pl.col("last_out") - math.floor(p["max_gap"] / dt + EPS))))
     # E's link red before A's front reached its stop line: the occurrence starts after the last such step
     light = _link_states(states, dt)

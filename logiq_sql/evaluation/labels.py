@@ -556,16 +556,23 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                  .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
                  .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
                  .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
+    actor_in = (pairs.select("actor_id", "enter_m_f").unique()
+                .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
+                .filter(pl.col("front_m") >= pl.col("enter_m_f") - EPS)
+                .group_by("actor_id", "enter_m_f").agg(actor_in_frame=pl.col("frame").min()))
     inside = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
               .group_by(ego_id="vehicle_id")
               .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
                                               & (pl.col("front_m") < pl.col("total_m"))).max(),
                    exited=(pl.col("front_m") >= pl.col("total_m")).any()))
     waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
+               .join(actor_in, on=["actor_id", "enter_m_f"])
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
                        & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
     # the ego waits until the actor is in the junction: the actor's front is past its junction start within
-    # the run of waiting frames or right after it (a run that ends earlier is no wait for this actor); the run
+    # the run of waiting frames or at most max_gap after it (a run that ends earlier is no wait for this actor;
+    # the scenario's sequence bridges max_gap between one phase and the next, as when the light turns amber
+    # while the actor reaches its stop line); the run
     # counts from the ego's first stop in it (it stops, then may pull forward while it gives way)
     keys = ["ego_id", "actor_id", "link", "link_f"]
     runs = (waiting.with_columns(island=_island(keys, _gap_frames(p, dt)))
@@ -575,7 +582,7 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
             .drop_nulls("start_frame"))
     entered = (runs.select(*keys, "island", "start_frame", "end_frame")
                .join(paths.select(actor_id="vehicle_id", frame="frame", front_m_f="front_m"), on="actor_id")
-               .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1)
+               .filter(pl.col("frame").is_between("start_frame", pl.col("end_frame") + 1 + _gap_frames(p, dt))
                        & (pl.col("front_m_f") >= -EPS))
                .select(*keys, "island").unique())
     # the turn follows the crossing: E sets off (the step after its last stop before its box reaches the
@@ -587,14 +594,17 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                .group_by(keys).agg(set_off=pl.col("stop_frame").max() + 1))
     crossed = (paths.filter(pl.col("front_m") <= pl.col("total_m") + p["max_offset_from_junction_end"] + EPS)
                .group_by(actor_id="vehicle_id").agg(crossed_frame=pl.col("frame").max()))
-    # ... or A is the last actor to leave E's path before E sets off, or left it at most max_gap before that one
-    # (phase 3 lasts until the set-off then)
-    outs = waiting.select(*keys, "actor_out_frame").unique().join(set_off, on=keys)
-    last = (outs.filter(pl.col("actor_out_frame") <= pl.col("set_off")).group_by("ego_id")
-            .agg(last_out=pl.col("actor_out_frame").max()))
+    # ... or A is the last actor to leave E's path of those whose front had reached it when E set off (E sets off
+    # as the car it waited for clears its path), or left it at most max_gap before that one (phase 3 lasts until
+    # the set-off then)
+    outs = waiting.select(*keys, "actor_out_frame", "actor_in_frame").unique().join(set_off, on=keys)
+    # E's set-off on its turn is its latest over those actors: an E that rolls into the junction behind one car
+    # and stands there for the oncoming ones sets off once, after the last stand
+    last = (outs.filter(pl.col("actor_in_frame") <= pl.col("set_off")).group_by("ego_id")
+            .agg(last_out=pl.col("actor_out_frame").max(), turn_set_off=pl.col("set_off").max()))
     turns = (set_off.join(crossed, on="actor_id")
              .join(outs.select(*keys, "actor_out_frame"), on=keys).join(last, on="ego_id", how="left")
-             .filter((pl.col("set_off") <= pl.col("crossed_frame") + 1 + _gap_frames(p, dt))
+             .filter((pl.coalesce("turn_set_off", "set_off") <= pl.col("crossed_frame") + 1 + _gap_frames(p, dt))
                      | (pl.col("actor_out_frame") >= pl.col("last_out") - _gap_frames(p, dt)))
              .select(keys))
     return (

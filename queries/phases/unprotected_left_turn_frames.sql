@@ -39,12 +39,13 @@
 --                                            frames at which phase 1's other conditions all hold: it stops,
 --                                            then gives the right of way, pulling forward or standing
 --   actor_finishing                          actor_crossing, or the actor is the last of kinds to leave the
---                                            encroachment area (its box) before the ego sets off (or left it at
---                                            most max_gap before that one), from that frame until the ego sets
---                                            off: the car the ego waited for
+--                                            encroachment area (its box) of those that reached it by the time
+--                                            the ego sets off (or left it at most max_gap before that one), from
+--                                            that frame until the ego sets off: the car the ego waited for
 --   ego_turning                              ego_in_junction, after the ego's last stand (ego_stopped) before
---                                            its box reaches the encroachment area: the turn, from the moment
---                                            the ego sets off
+--                                            its box reaches the encroachment area of an actor it may have
+--                                            waited for (the latest over them; without one, this actor's):
+--                                            the turn, from the moment the ego sets off
 --   actor_crossing                           the actor is past the start of its (buffered) encroachment and
 --                                            at most max_offset_from_junction_end past the junction end
 --   actor_reaches_junction_end               the actor gets to min_offset_from_junction_end from the junction
@@ -332,6 +333,7 @@ measured as (
         c.actor_first,
         c.pet_s,
         c.ego_in_frame as ego_encroachment_frame,
+        c.actor_in_frame as actor_reach_frame,
         c.actor_out_frame as actor_clear_frame,
         min(case when f.actor_offset_from_junction_end_m >= $min_offset_from_junction_end_m then f.frame end) over (
             partition by f.drive_id, f.ego_id, f.ego_passage, f.actor_id, f.actor_passage
@@ -401,17 +403,32 @@ waiting as (
     from conditions
 ),
 
+candidates as (
+    -- the actors the ego may have waited for: of kinds, from another entry, crossing its path first, and on that
+    -- path (the box reached the area) by the time the ego sets off from its last stand before it
+    select
+        *,
+        actor_kind_ok and actor_from_other_entry and coalesce(actor_first, false)
+            and coalesce(actor_reach_frame <= ego_last_stop_frame + 1, false) as waited_candidate
+    from waiting
+),
+
 clearing as (
-    -- the last frame at which an actor of kinds that crosses first leaves the ego's path before the ego sets off
-    -- (the frame after its last stand), over every actor of the ego's passage: the actor the ego waited for, with
-    -- any that left it at most max_gap earlier (two oncoming lanes passing together)
+    -- over every actor of the ego's passage, the frame at which the last candidate leaves the ego's path: the
+    -- actor the ego waited for, with any that left it at most max_gap earlier (two oncoming lanes passing
+    -- together). Reached, not left, by the set-off: a driver sets off as the car it waited for is clearing its
+    -- path, so "left before the set-off" turned on a frame or two and credited the car before it. And the
+    -- ego's last stand before the turn: its latest stand before a candidate's area, so that an ego that rolls
+    -- into the junction behind one car and stands there for the oncoming ones sets off on its turn once
     select
         w.*,
-        max(case when w.actor_kind_ok and w.actor_first and w.actor_clear_frame <= w.ego_last_stop_frame + 1
-                 then w.actor_clear_frame end) over (
+        max(case when w.waited_candidate then w.actor_clear_frame end) over (
             partition by w.drive_id, w.ego_id, w.ego_passage
-        ) - floor($max_gap_s / nullif(d.dt_s, 0) + 1e-9) as waited_for_from_frame
-    from waiting as w
+        ) - floor($max_gap_s / nullif(d.dt_s, 0) + 1e-9) as waited_for_from_frame,
+        max(case when w.waited_candidate then w.ego_last_stop_frame end) over (
+            partition by w.drive_id, w.ego_id, w.ego_passage
+        ) as ego_turn_stop_frame
+    from candidates as w
     inner join drive_inputs as d
         on w.drive_id = d.drive_id
 )
@@ -424,9 +441,9 @@ select
         partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
         rows between unbounded preceding and current row
     ) > coalesce(waiting_since_frame, -1), false) as ego_has_stopped,
-    ego_in_junction and coalesce(frame > ego_last_stop_frame, true) as ego_turning,
+    ego_in_junction and coalesce(frame > coalesce(ego_turn_stop_frame, ego_last_stop_frame), true) as ego_turning,
     -- crossing, or, for the last actor the ego waited for, past the encroachment area until the ego sets off
     actor_crossing or coalesce(actor_clear_frame >= waited_for_from_frame
-                               and actor_clear_frame <= ego_last_stop_frame + 1 and frame >= actor_clear_frame
-                               and frame <= ego_last_stop_frame, false) as actor_finishing
+                               and actor_clear_frame <= ego_turn_stop_frame + 1 and frame >= actor_clear_frame
+                               and frame <= ego_turn_stop_frame, false) as actor_finishing
 from clearing

@@ -379,3 +379,56 @@ def test_cars_passing_together_are_both_waited_for(tmp_path):
                                        drive("first", T, oncoming_s(T, enters_at=5.0), "N_straight"),
                                        drive("second", T, oncoming_s(T, enters_at=5.5), "N_straight")])
     assert match(path, scenarios=[SCENARIO]).matches.select("actor_id").sort("actor_id").rows() == [("first",), ("second",)]
+
+
+def test_the_car_the_ego_waited_for_may_clear_its_path_as_it_sets_off(tmp_path):
+    """The ego stands at the line until 12 s; the first car left its path 3 s before, the second one is in it
+    when the ego sets off (12.3 s: its 0.5 s speed passes 2 kph) and leaves it 0.5 s later, before the ego's box
+    gets there. A driver sets off as the car it waited for is clearing its path: the ego waited for the second
+    car, not the first (docs/semantics.md, phase 3: the last car of those that reached the ego's path by the time
+    it set off). Read as "the last car to have left the path before the set-off", the first car was credited
+    too (SUMO's left-turners on a junction whose exits back up, seed 972: 8 false matches)."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_s(T, wait_until=12.0), "S_left", is_ego=True),
+                                       drive("first", T, oncoming_s(T, enters_at=8.1), "N_straight"),
+                                       drive("second", T, oncoming_s(T, enters_at=11.1), "N_straight")])
+    frames = left_turn_frames(path, ego="ego")["phase_frames"]
+    times = frames.group_by("actor_id").agg(pl.col("actor_reach_frame", "actor_clear_frame", "ego_last_stop_frame",
+                                                   "ego_encroachment_frame").first())
+    second = times.filter(pl.col("actor_id") == "second").row(0, named=True)
+    # the drive is what the docstring says: the second car is in the ego's path at the set-off and leaves it
+    # after the set-off, before the ego's box reaches it
+    assert second["actor_reach_frame"] <= second["ego_last_stop_frame"] + 1 < second["actor_clear_frame"]
+    assert second["actor_clear_frame"] <= second["ego_encroachment_frame"]
+    result = match(path, scenarios=[SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("second",)]
+
+
+def ego_rolls_in_then_waits_s(t: np.ndarray) -> np.ndarray:
+    """Stands at the line (centre 2 m back) from 4 s; at 6 s rolls forward (2 m/s^2 for 1.5 s, then 1.5 m/s^2
+    braking) to stand 3.25 m into the junction at 9.5 s, short of the oncoming lane; sets off at 14 s."""
+    a = np.clip(t - 6.0, 0, 1.5)
+    b = np.clip(t - 7.5, 0, 2.0)
+    go = np.clip(t - 14.0, 0, None)
+    standing = -18 + 8 * np.minimum(t, 4) - np.minimum(t, 4) ** 2
+    return np.where(t < 14.0, standing + a**2 + 3 * b - 0.75 * b**2, 3.25 + np.where(go < 3, go**2, 9 + 6 * (go - 3)))
+
+
+def test_the_ego_sets_off_on_its_turn_after_its_last_stand(tmp_path):
+    """A car from the ego's left crosses in front of it (in the junction's outer eastbound lane, 5-7 s) as the
+    ego rolls forward from the line at 6 s; the ego stands again 3.25 m into the junction, short of the oncoming
+    lane, from 9.5 s until the oncoming car has passed (12-13.7 s), and turns at 14 s. It waited for the oncoming
+    car; it set off on its turn once, after its last stand (docs/semantics.md, phase 4). With the set-off read
+    for each car's area, the turn behind the first car began at 6 s and held while the ego stood for 4.5 s:
+    both cars matched (SUMO, junction_2lane_shared_40kmh seed 972: a left-turner from the cross road clearing
+    the junction at the green)."""
+    path = make_junction_db(tmp_path, [drive("ego", T, ego_rolls_in_then_waits_s(T), "S_left", is_ego=True),
+                                       drive("cross", T, 10 * (T - 5.0), "W_straight"),
+                                       drive("oncoming", T, oncoming_s(T, enters_at=12.0), "N_straight")])
+    frames = left_turn_frames(path, ego="ego")["phase_frames"]
+    stops = frames.group_by("actor_id").agg(pl.col("ego_last_stop_frame", "actor_first").first())
+    # the drive is what the docstring says: the ego's last stand before the cross car's area is at the line,
+    # before the oncoming car's area the one inside the junction; both cars cross its path first
+    assert dict(stops.select("actor_id", "ego_last_stop_frame").rows()) == {"cross": 62, "oncoming": 142}
+    assert stops["actor_first"].all()
+    result = match(path, scenarios=[SCENARIO])
+    assert result.matches.select("actor_id").rows() == [("oncoming",)]
