@@ -59,7 +59,6 @@ in_lane as (
         ego_key,
         actor_key,
         frame,
-        lane_run,
         min(case when not (in_ego_lane and coalesce(next_frame = frame + 1, false)) then frame end) over (
             partition by drive_key, ego_key, actor_key, lane_run order by frame desc
             rows between unbounded preceding and current row
@@ -70,15 +69,11 @@ in_lane as (
         ) as in_path_frame
     from (
         select
-            drive_key,
-            ego_key,
-            actor_key,
-            frame,
-            lane_run,
-            dy_m,
-            same_lane and dx_m > 0 as in_ego_lane,
-            lead(frame) over (partition by drive_key, ego_key, actor_key, lane_run order by frame) as next_frame
-        from relations
+            r.*,
+            r.same_lane and r.dx_m > 0 as in_ego_lane,
+            lead(r.frame) over (partition by r.drive_key, r.ego_key, r.actor_key, r.lane_run order by r.frame)
+                as next_frame
+        from relations as r
     ) as r
 ),
 
