@@ -3,7 +3,7 @@
 --        phase contract (docs/scenarios.md)
 -- reads: relations, ego_lanes, drive_inputs, lane_line, track_lanes (joined and windowed on the integer keys)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
---         $lane_calculation_tolerance_length_m
+--         $lane_calculation_tolerance_length_m, $max_cut_in_lateral_offset_m
 --
 -- Conditions (holds = all of them):
 --   actor_kind_ok      the actor is of one of the kinds
@@ -23,6 +23,14 @@
 --                      over the line into the lane beside and back, never further, has not left the ego's lane,
 --                      so its return is no cut-in (the two parallel lanelets of a double left turn swap a car's
 --                      label while it drives on)
+--   actor_in_ego_path  the cut-in ends with the actor in the ego's path: between its next frame ahead in the ego's
+--                      lane (entry_frame) and the end of that stay (the first frame after it at which the actor is
+--                      not ahead in the ego's lane, or the last before a gap in its frames, within the ego's lane
+--                      run), its centre comes within max_cut_in_lateral_offset (1.5 m) of the ego's centre side
+--                      to side in the ego's frame (|dy_m|) at least once. A lane label alone is not a cut-in: where
+--                      lanelets overlap (a double left turn) a car's label can become the ego's while it drives on
+--                      beside it, 3 m and more to the side. True when the actor is not in the ego's lane again
+--                      later (the phase then does not chain anyway)
 -- segment = the ego's lane run: the ego keeps its lane while the actor cuts in.
 with
 
@@ -39,6 +47,34 @@ ahead as (
         ) as entry_frame
     from relations as r
     where r.dx_m > 0
+),
+
+in_lane as (
+    -- per frame of the ego's lane run, read backwards: where the actor's stay ahead in the ego's lane that goes on
+    -- from this frame ends (the first frame from this one on that is out of the lane, or the last before a gap in
+    -- the frame numbers: the actor out of range), and the next frame at which it is ahead in the ego's lane with
+    -- its centre within max_cut_in_lateral_offset of the ego's side to side
+    select
+        drive_key,
+        ego_key,
+        actor_key,
+        frame,
+        min(case when not (in_ego_lane and coalesce(next_frame = frame + 1, false)) then frame end) over (
+            partition by drive_key, ego_key, actor_key, lane_run order by frame desc
+            rows between unbounded preceding and current row
+        ) as stay_end_frame,
+        min(case when in_ego_lane and abs(dy_m) <= $max_cut_in_lateral_offset_m then frame end) over (
+            partition by drive_key, ego_key, actor_key, lane_run order by frame desc
+            rows between unbounded preceding and current row
+        ) as in_path_frame
+    from (
+        select
+            r.*,
+            r.same_lane and r.dx_m > 0 as in_ego_lane,
+            lead(r.frame) over (partition by r.drive_key, r.ego_key, r.actor_key, r.lane_run order by r.frame)
+                as next_frame
+        from relations as r
+    ) as r
 ),
 
 last_in as (
@@ -96,7 +132,8 @@ left_lane as (
 checked as (
     select
         a.*,
-        a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane
+        a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane,
+        a.entry_frame is null or stay.in_path_frame <= stay.stay_end_frame as actor_in_ego_path
     from left_lane as a
     inner join drive_inputs as d
         on a.drive_key = d.drive_key
@@ -104,6 +141,9 @@ checked as (
         on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
     left join lane_line as line
         on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
+    left join in_lane as stay
+        on a.drive_key = stay.drive_key and a.ego_key = stay.ego_key and a.actor_key = stay.actor_key
+        and a.entry_frame = stay.frame
 ),
 
 conditions as (
@@ -121,6 +161,7 @@ conditions as (
             and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         ego_keeps_lane,
         coalesce(last_out_of_lane_frame > last_in_lane_frame, last_in_lane_frame is null) as actor_left_ego_lane,
+        coalesce(actor_in_ego_path, false) as actor_in_ego_path,
         actor_kind,
         lon_gap_m,
         adjacent_side,
@@ -136,5 +177,5 @@ conditions as (
 select
     *,
     actor_kind_ok and actor_ahead and actor_beside and headway_in_range and ego_keeps_lane and actor_left_ego_lane
-        as holds
+        and actor_in_ego_path as holds
 from conditions

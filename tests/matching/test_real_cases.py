@@ -15,6 +15,9 @@
 - NGSIM Lankershim (USA_Lanker-2_14): car 2716 drives 20-21 m ahead of ego 2815, in line with it, into the same
   double left turn; its lane label goes from the ego's lanelet to the parallel one and back while it drives round
   the bend, never more than 1 m from the lanelet it left: a drift over the line and back is no cut-in.
+  In the same turn car 2716 drives 13-15 m ahead of ego 2839, 3-5 m to its right, and their labels meet on the
+  parallel lanelet 3666 while neither moves towards the other: a shared label is no cut-in, the actor must end in
+  the ego's path (their boxes overlapping side to side), as car 2896 does ahead of ego 2916.
 - `explain` points at the moment a person looks at: nuScenes scene-0103's bicycle at its closest pass; a
   Lankershim follower's first seconds that are no match, and why.
 """
@@ -178,3 +181,23 @@ def test_a_car_whose_lane_label_flickers_in_a_double_left_turn_does_not_cut_in(n
     cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == LANKER_2_14)
                                        & (pl.col("ego_id") == "2815") & (pl.col("actor_id") == "2716"))
     assert cut_ins.is_empty()
+
+
+def test_a_car_that_only_shares_the_ego_lane_label_in_a_double_left_turn_does_not_cut_in(ngsim_db, ngsim_run):
+    """Lanker-2_14 (the NGSIM window of Lanker-2_13 two seconds earlier): car 2716 drives ahead of ego 2839 and to
+    its right into the double left turn; from 2.8 s to 4.0 s both are labelled lanelet 3666 (overlapping junction
+    lanelets), the actor's centre more than 3 m to the ego's side with both boxes about 2 m wide. Nobody moved into
+    the other's path. Car 2896 cutting in ahead of ego 2916 in the same recording stays matched."""
+    shared = in_ego_frame(ngsim_db, LANKER_2_14, "2839", "2716").filter(pl.col("t_s").is_between(2.8, 4.0))
+    assert shared["fwd_m"].is_between(12, 16).all() and (shared["left_m"] < -3.0).all()
+    with duckdb.connect(str(ngsim_db), read_only=True) as con:
+        labels = con.sql("""select count(*) filter (where l.lane_id = '3666'), count(*) from tracks t
+                            left join track_lanes l on l.drive_id = t.drive_id and l.actor_id = t.actor_id
+                                and l.frame = t.frame and l.lane_id = '3666' and l.dist_m <= 1.0
+                            where t.drive_id = $d and t.actor_id in ('2839', '2716') and t.t_s between 2.8 and 4.0""",
+                         params={"d": LANKER_2_14}).fetchall()[0]
+    assert labels[0] == labels[1]  # both centres within the 1 m lane tolerance of lanelet 3666 throughout
+    cut_ins = ngsim_run.matches.filter((pl.col("scenario") == CUT_IN) & (pl.col("drive_id") == LANKER_2_14))
+    pairs = set(zip(cut_ins["ego_id"], cut_ins["actor_id"], strict=True))
+    assert ("2839", "2716") not in pairs
+    assert ("2916", "2896") in pairs
