@@ -41,50 +41,45 @@ ahead as (
     where r.dx_m > 0
 ),
 
-last_in as (
-    -- per frame of the ego's lane run, read forwards (one sort): the actor's last frame ahead in the ego's lane so
-    -- far and its last frame neither in the ego's lane nor beside it (running maxima), and its next frame ahead.
+per_frame as (
+    -- per frame, read forwards in one sort by actor (the ego's lane run only grows with the frame):
+    --   last_in_lane_frame     the actor's last frame ahead in the ego's lane so far in this lane run (the last one
+    --                          so far in any lane run, if that is this one)
+    --   last_not_beside_frame  its last frame so far neither in the ego's lane nor beside it
+    --   entry_frame            the first frame from this one on at which it is ahead in the ego's lane (at the
+    --                          phase's frames the actor is beside, not in the lane, so it is the next one)
+    --   in_path_frame          the first frame from this one on at which it is ahead in the ego's lane with its
+    --                          centre within max_cut_in_lateral_offset of the ego's side to side
+    --   frames_in_lane         how many frames so far it was ahead in the ego's lane: between two frames in the lane
+    --                          it stayed in the lane throughout iff this count grew by their distance in frames
     -- Only the frames ahead count: a frame at which the actor is not ahead ends its stay in the ego's lane like a
     -- gap in its frames does, and is never in the ego's path
     select
         *,
-        max(case when same_lane then frame end) over (
-            partition by drive_key, ego_key, actor_key, lane_run order by frame
+        case when max(case when same_lane then lane_run end) over (
+            partition by drive_key, ego_key, actor_key order by frame
             rows between unbounded preceding and current row
-        ) as last_in_lane_frame,
+        ) = lane_run then max(case when same_lane then frame end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between unbounded preceding and current row
+        ) end as last_in_lane_frame,
         max(case when not same_lane and adjacent_side is null then frame end) over (
-            partition by drive_key, ego_key, actor_key, lane_run order by frame
+            partition by drive_key, ego_key, actor_key order by frame
             rows between unbounded preceding and current row
         ) as last_not_beside_frame,
-        lead(frame) over (partition by drive_key, ego_key, actor_key, lane_run order by frame) as next_ahead_frame
-    from ahead
-),
-
-entries as (
-    -- per frame, read backwards (one sort, by actor: the ego's lane run only grows with the frame; a running min up
-    -- to the current row: a frame that ends at 1 preceding does not run on Polars):
-    --   entry_frame     the first frame from this one on at which the actor is ahead in the ego's lane (at the
-    --                   phase's frames the actor is beside, not in the lane, so it is the next one)
-    --   stay_end_frame  where its stay ahead in the ego's lane that goes on from this frame ends: the first frame
-    --                   from this one on that is out of the lane, or the last before a gap or the end of the lane run
-    --   in_path_frame   the next frame at which it is ahead in the ego's lane with its centre within
-    --                   max_cut_in_lateral_offset of the ego's side to side
-    -- The stay always ends within the lane run, so an in_path_frame of a later run (none in this one) comes after it
-    select
-        *,
         min(case when same_lane then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame desc
-            rows between unbounded preceding and current row
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between current row and unbounded following
         ) as entry_frame,
-        min(case when not (same_lane and coalesce(next_ahead_frame = frame + 1, false)) then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame desc
-            rows between unbounded preceding and current row
-        ) as stay_end_frame,
         min(case when same_lane and abs(dy_m) <= $max_cut_in_lateral_offset_m then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame desc
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between current row and unbounded following
+        ) as in_path_frame,
+        count(case when same_lane then 1 end) over (
+            partition by drive_key, ego_key, actor_key order by frame
             rows between unbounded preceding and current row
-        ) as in_path_frame
-    from last_in
+        ) as frames_in_lane
+    from ahead
 ),
 
 beside_after_in as (
@@ -92,8 +87,8 @@ beside_after_in as (
     -- actor was in then: the lane it left (a join back: last_value(... ignore nulls) does not run on every engine)
     select
         b.drive_key, b.ego_key, b.actor_key, b.frame, b.last_in_lane_frame, d.map_id, i.actor_lane_id as left_lane_id
-    from last_in as b
-    inner join last_in as i
+    from per_frame as b
+    inner join per_frame as i
         on b.drive_key = i.drive_key and b.ego_key = i.ego_key and b.actor_key = i.actor_key
         and b.last_in_lane_frame = i.frame
     inner join drive_inputs as d
@@ -134,9 +129,9 @@ first_far as (
 ),
 
 stays as (
-    -- the frames ahead in the ego's lane, where a cut-in's stay can begin (entry_frame)
-    select drive_key, ego_key, actor_key, frame, stay_end_frame, in_path_frame
-    from entries
+    -- the frames ahead in the ego's lane, where a cut-in's stay can begin (entry_frame) and end in its path
+    select drive_key, ego_key, actor_key, frame, lane_run, in_path_frame, frames_in_lane
+    from per_frame
     where same_lane
 ),
 
@@ -148,8 +143,12 @@ checked as (
         -- away from the lane it left
         a.last_in_lane_frame is null or coalesce(a.last_not_beside_frame > a.last_in_lane_frame, false)
             or coalesce(far.first_far_frame <= a.frame, false) as actor_left_ego_lane,
-        a.entry_frame is null or stay.in_path_frame <= stay.stay_end_frame as actor_in_ego_path
-    from entries as a
+        -- the actor reaches its path (in_path_frame) from the entry frame without leaving the ego's lane run or
+        -- lane, or a gap in its frames between them
+        a.entry_frame is null
+            or (path.lane_run = stay.lane_run
+                and path.frames_in_lane - stay.frames_in_lane = path.frame - stay.frame) as actor_in_ego_path
+    from per_frame as a
     inner join drive_inputs as d
         on a.drive_key = d.drive_key
     left join ego_lanes as entry
@@ -159,6 +158,9 @@ checked as (
     left join stays as stay
         on a.drive_key = stay.drive_key and a.ego_key = stay.ego_key and a.actor_key = stay.actor_key
         and a.entry_frame = stay.frame
+    left join stays as path
+        on stay.drive_key = path.drive_key and stay.ego_key = path.ego_key and stay.actor_key = path.actor_key
+        and stay.in_path_frame = path.frame
     left join first_far as far
         on a.drive_key = far.drive_key and a.ego_key = far.ego_key and a.actor_key = far.actor_key
         and a.last_in_lane_frame = far.last_in_lane_frame
