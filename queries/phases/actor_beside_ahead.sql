@@ -35,115 +35,135 @@
 with
 
 ahead as (
-    select
-        r.*,
-        r.ego_lane_id as ego_lane_now_id,
-        -- the first frame from this one on at which the actor is ahead in the ego's lane (a running min read
-        -- backwards, up to the current row: a frame that ends at 1 preceding does not run on Polars). At the
-        -- phase's frames the actor is beside, not in the lane, so it is the next one
-        min(case when r.same_lane then r.frame end) over (
-            partition by r.drive_key, r.ego_key, r.actor_key order by r.frame desc
-            rows between unbounded preceding and current row
-        ) as entry_frame
+    -- the frames at which the actor is ahead: the phase's grain, and all that its conditions read of the relation
+    select r.*, r.ego_lane_id as ego_lane_now_id
     from relations as r
     where r.dx_m > 0
 ),
 
-in_lane as (
-    -- per frame of the ego's lane run, read backwards: where the actor's stay ahead in the ego's lane that goes on
-    -- from this frame ends (the first frame from this one on that is out of the lane, or the last before a gap in
-    -- the frame numbers: the actor out of range), and the next frame at which it is ahead in the ego's lane with
-    -- its centre within max_cut_in_lateral_offset of the ego's side to side
-    select
-        drive_key,
-        ego_key,
-        actor_key,
-        frame,
-        min(case when not (in_ego_lane and coalesce(next_frame = frame + 1, false)) then frame end) over (
-            partition by drive_key, ego_key, actor_key, lane_run order by frame desc
-            rows between unbounded preceding and current row
-        ) as stay_end_frame,
-        min(case when in_ego_lane and abs(dy_m) <= $max_cut_in_lateral_offset_m then frame end) over (
-            partition by drive_key, ego_key, actor_key, lane_run order by frame desc
-            rows between unbounded preceding and current row
-        ) as in_path_frame
-    from (
-        select
-            r.*,
-            r.same_lane and r.dx_m > 0 as in_ego_lane,
-            lead(r.frame) over (partition by r.drive_key, r.ego_key, r.actor_key, r.lane_run order by r.frame)
-                as next_frame
-        from relations as r
-    ) as r
-),
-
-last_in as (
-    -- per frame, the actor's last frame ahead in the ego's lane so far in this lane run (a running max)
+per_frame as (
+    -- per frame, read forwards in one sort by actor (the ego's lane run only grows with the frame):
+    --   last_in_lane_frame     the actor's last frame ahead in the ego's lane so far in this lane run (the last one
+    --                          so far in any lane run, if that is this one)
+    --   last_not_beside_frame  its last frame so far neither in the ego's lane nor beside it
+    --   entry_frame            the first frame from this one on at which it is ahead in the ego's lane (at the
+    --                          phase's frames the actor is beside, not in the lane, so it is the next one)
+    --   in_path_frame          the first frame from this one on at which it is ahead in the ego's lane with its
+    --                          centre within max_cut_in_lateral_offset of the ego's side to side
+    --   frames_in_lane         how many frames so far it was ahead in the ego's lane: between two frames in the lane
+    --                          it stayed in the lane throughout iff this count grew by their distance in frames
+    -- Only the frames ahead count: a frame at which the actor is not ahead ends its stay in the ego's lane like a
+    -- gap in its frames does, and is never in the ego's path
     select
         *,
-        max(case when same_lane then frame end) over (
-            partition by drive_key, ego_key, actor_key, lane_run order by frame
+        case when max(case when same_lane then lane_run end) over (
+            partition by drive_key, ego_key, actor_key order by frame
             rows between unbounded preceding and current row
-        ) as last_in_lane_frame
+        ) = lane_run then max(case when same_lane then frame end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between unbounded preceding and current row
+        ) end as last_in_lane_frame,
+        max(case when not same_lane and adjacent_side is null then frame end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between unbounded preceding and current row
+        ) as last_not_beside_frame,
+        min(case when same_lane then frame end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between current row and unbounded following
+        ) as entry_frame,
+        min(case when same_lane and abs(dy_m) <= $max_cut_in_lateral_offset_m then frame end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between current row and unbounded following
+        ) as in_path_frame,
+        count(case when same_lane then 1 end) over (
+            partition by drive_key, ego_key, actor_key order by frame
+            rows between unbounded preceding and current row
+        ) as frames_in_lane
     from ahead
 ),
 
 beside_after_in as (
-    -- the frames beside the ego after the actor was in its lane, with the lane the actor was in then: the lane it
-    -- left (a join back: last_value(... ignore nulls) does not run on every engine)
-    select b.drive_key, b.ego_key, b.actor_key, b.frame, d.map_id, i.actor_lane_id as left_lane_id
-    from last_in as b
-    inner join ahead as i
+    -- the frames beside the ego, out of its lane, after the actor was in it in this lane run, with the lane the
+    -- actor was in then: the lane it left (a join back: last_value(... ignore nulls) does not run on every engine)
+    select
+        b.drive_key, b.ego_key, b.actor_key, b.frame, b.last_in_lane_frame, d.map_id, i.actor_lane_id as left_lane_id
+    from per_frame as b
+    inner join per_frame as i
         on b.drive_key = i.drive_key and b.ego_key = i.ego_key and b.actor_key = i.actor_key
         and b.last_in_lane_frame = i.frame
     inner join drive_inputs as d
         on b.drive_key = d.drive_key
-    where b.adjacent_side is not null
+    where b.adjacent_side is not null and not b.same_lane
+),
+
+beside_lanes as (
+    -- the lanes the actor is within the tolerance of at those frames, found on the integer keys first. Distinct
+    -- (the rows are distinct already) so that the engine cannot join the lane ids of every map first
+    select distinct b.drive_key, b.ego_key, b.actor_key, b.frame, b.map_id, b.left_lane_id, tl.lane_id
+    from beside_after_in as b
+    inner join track_lanes as tl
+        on b.drive_key = tl.drive_key and b.actor_key = tl.actor_key and b.frame = tl.frame
+    where tl.dist_m <= $lane_calculation_tolerance_length_m
 ),
 
 near_left_lane as (
     -- of those, the frames at which the actor is within the tolerance of the lane it left or a lane that continues
     -- it (the ego's keep_lane rule: the lane it came from and its lane line)
     select b.drive_key, b.ego_key, b.actor_key, b.frame
-    from beside_after_in as b
+    from beside_lanes as b
     inner join lane_line as line
-        on b.map_id = line.map_id and b.left_lane_id = line.lane_id
-    inner join track_lanes as tl
-        on b.drive_key = tl.drive_key and b.actor_key = tl.actor_key and b.frame = tl.frame
-        and line.line_lane_id = tl.lane_id
-    where tl.dist_m <= $lane_calculation_tolerance_length_m
+        on b.map_id = line.map_id and b.left_lane_id = line.lane_id and b.lane_id = line.line_lane_id
     group by b.drive_key, b.ego_key, b.actor_key, b.frame
 ),
 
-left_lane as (
-    -- per frame, the last frame so far in this lane run at which the actor was clearly out of the ego's lane:
-    -- neither in it nor beside it within the tolerance of the lane it left
-    select
-        a.*,
-        max(case when not a.same_lane and (a.adjacent_side is null or n.frame is null) then a.frame end) over (
-            partition by a.drive_key, a.ego_key, a.actor_key, a.lane_run order by a.frame
-            rows between unbounded preceding and current row
-        ) as last_out_of_lane_frame
-    from last_in as a
+first_far as (
+    -- per stay out of the ego's lane (the frames after the same last_in_lane_frame), the first frame beside the ego
+    -- and farther than the tolerance from the lane the actor left: with the frames neither in the lane nor beside
+    -- it (last_not_beside_frame), the frames at which the actor was clearly out of the ego's lane
+    select b.drive_key, b.ego_key, b.actor_key, b.last_in_lane_frame, min(b.frame) as first_far_frame
+    from beside_after_in as b
     left join near_left_lane as n
-        on a.drive_key = n.drive_key and a.ego_key = n.ego_key and a.actor_key = n.actor_key and a.frame = n.frame
+        on b.drive_key = n.drive_key and b.ego_key = n.ego_key and b.actor_key = n.actor_key and b.frame = n.frame
+    where n.frame is null
+    group by b.drive_key, b.ego_key, b.actor_key, b.last_in_lane_frame
+),
+
+stays as (
+    -- the frames ahead in the ego's lane, where a cut-in's stay can begin (entry_frame) and end in its path
+    select drive_key, ego_key, actor_key, frame, lane_run, in_path_frame, frames_in_lane
+    from per_frame
+    where same_lane
 ),
 
 checked as (
     select
         a.*,
         a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane,
-        a.entry_frame is null or stay.in_path_frame <= stay.stay_end_frame as actor_in_ego_path
-    from left_lane as a
+        -- out of the ego's lane since the last frame in it: a frame neither in nor beside it, or beside it but
+        -- away from the lane it left
+        a.last_in_lane_frame is null or coalesce(a.last_not_beside_frame > a.last_in_lane_frame, false)
+            or coalesce(far.first_far_frame <= a.frame, false) as actor_left_ego_lane,
+        -- the actor reaches its path (in_path_frame) from the entry frame without leaving the ego's lane run or
+        -- lane, or a gap in its frames between them
+        a.entry_frame is null
+            or (path.lane_run = stay.lane_run
+                and path.frames_in_lane - stay.frames_in_lane = path.frame - stay.frame) as actor_in_ego_path
+    from per_frame as a
     inner join drive_inputs as d
         on a.drive_key = d.drive_key
     left join ego_lanes as entry
         on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
     left join lane_line as line
         on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
-    left join in_lane as stay
+    left join stays as stay
         on a.drive_key = stay.drive_key and a.ego_key = stay.ego_key and a.actor_key = stay.actor_key
         and a.entry_frame = stay.frame
+    left join stays as path
+        on stay.drive_key = path.drive_key and stay.ego_key = path.ego_key and stay.actor_key = path.actor_key
+        and stay.in_path_frame = path.frame
+    left join first_far as far
+        on a.drive_key = far.drive_key and a.ego_key = far.ego_key and a.actor_key = far.actor_key
+        and a.last_in_lane_frame = far.last_in_lane_frame
 ),
 
 conditions as (
@@ -160,7 +180,7 @@ conditions as (
         coalesce(time_headway_s >= $min_distance_from_sut_in_time_units_s
             and time_headway_s <= $max_distance_from_sut_in_time_units_s, false) as headway_in_range,
         ego_keeps_lane,
-        coalesce(last_out_of_lane_frame > last_in_lane_frame, last_in_lane_frame is null) as actor_left_ego_lane,
+        actor_left_ego_lane,
         coalesce(actor_in_ego_path, false) as actor_in_ego_path,
         actor_kind,
         lon_gap_m,
