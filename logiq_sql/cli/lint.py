@@ -223,7 +223,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     from logiq_sql.engines.base import INPUT_TABLES
     from logiq_sql.engines.spark_engine import spark_text
     from logiq_sql.outputs import replay
-    from logiq_sql.spec.plan import MATCH_ROWS_STEP, parse_ego, run_values, scenario_steps
+    from logiq_sql.spec.plan import parse_ego, result_steps, run_values, scenario_steps
     from logiq_sql.spec.scenario import list_scenarios
 
     tables = {t.name: t.polars_schema for t in INPUT_TABLES} | _side_tables()
@@ -233,13 +233,7 @@ def spark_problems(spark, root: Path | None = None) -> list[str]:
     runs: list[tuple[str, str, dict[str, object]]] = []
     for s in list_scenarios():
         values = run_values(s, parse_ego("auto"), 200.0)
-        runs += [(t, rel, values) for t, rel in scenario_steps(s)]
-        runs += [("scenario_matches", "match/identify.sql", values),
-                 ("scenario_match_phases", "match/match_phases.sql", values), (*MATCH_ROWS_STEP, values),
-                 *[("_kpi", rel, values) for rel in s.kpi_queries]]
-        if s.sample_queries:  # in the runner's order: the sample events, then each sample query over them
-            runs += [("match_samples", "match/samples.sql", values),
-                     *[("_sample", rel, values) for rel in s.sample_queries]]
+        runs += [(t, rel, values) for t, rel in [*scenario_steps(s), *result_steps(s)]]
     runs += [("_coverage", "coverage/histogram.sql", {})]
     runs += [(t, rel, values | replay.PARAMS) for t, rel in replay.STEPS]  # after the relations steps it reads
     # staging/tracks.sql runs at ingest, on DuckDB only: its windows run over the input order, which Spark does

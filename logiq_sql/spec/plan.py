@@ -186,7 +186,16 @@ def scenario_steps(s: Scenario) -> list[tuple[str, str]]:
             *phase_steps(s)]
 
 
+def result_steps(s: Scenario) -> list[tuple[str, str]]:
+    """The steps after the phases, in the runner's order (table, query): the matches and their phases, the rows
+    inside their intervals, each KPI query, then the sample events and each sample query over them."""
+    steps = [("scenario_matches", IDENTIFY_QUERY), ("scenario_match_phases", MATCH_PHASES_QUERY), MATCH_ROWS_STEP]
+    steps += [("_kpi", rel) for rel in s.kpi_queries]
+    if s.sample_queries:
+        steps += [("match_samples", SAMPLES_QUERY), *[("_sample", rel) for rel in s.sample_queries]]
+    return steps
+
+
 def scenario_queries(s: Scenario) -> list[str]:
     """Every query file a run of ``s`` executes, in order."""
-    return [*(rel for _, rel in scenario_steps(s)), IDENTIFY_QUERY, MATCH_PHASES_QUERY, MATCH_ROWS_STEP[1],
-            SAMPLES_QUERY, *s.kpi_queries, *s.sample_queries]
+    return [rel for _, rel in [*scenario_steps(s), *result_steps(s)]]

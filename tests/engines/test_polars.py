@@ -23,11 +23,9 @@ from logiq_sql.engines.polars_engine import POLARS_UNSUPPORTED, PolarsEngine, ov
 from logiq_sql.matching.encroachment import encroachments
 from logiq_sql.matching.match import select_run_drives
 from logiq_sql.spec.plan import (
-    MATCH_PHASES_QUERY,
-    MATCH_ROWS_STEP,
-    SAMPLES_QUERY,
     parse_ego,
     resolve_scenarios,
+    result_steps,
     run_values,
     scenario_steps,
 )
@@ -79,11 +77,7 @@ def _walk(path: Path, scenarios: list[str], ego: str, overrides: dict[str, str],
         polars.register("run_drives", run_drives)
         for s in resolve_scenarios(scenarios, overrides):
             values = run_values(s, parse_ego(ego), 200.0)
-            steps = [*scenario_steps(s), ("scenario_matches", "match/identify.sql"),
-                     ("scenario_match_phases", MATCH_PHASES_QUERY), MATCH_ROWS_STEP,
-                     *[("_kpi", rel) for rel in s.kpi_queries], ("match_samples", SAMPLES_QUERY),
-                     *[("_sample", rel) for rel in s.sample_queries]]
-            for table, rel in steps:
+            for table, rel in [*scenario_steps(s), *result_steps(s)]:
                 duck.materialise(table, rel, values)
                 result = duck.frame(table)
                 assert result.height > 0 or rel.startswith("kpis/"), rel  # compare real rows
