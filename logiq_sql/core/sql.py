@@ -58,8 +58,7 @@ def _expanded(relative: str) -> str:
     """queries/<file> run for phases 1..n (``per_phase``): its header, then its select for each phase, joined by
     union all. Only names change (tables, parameters) and the phase_index literal; no value enters the text."""
     template, phases = relative.rsplit(PER_PHASE, 1)
-    text = query_text(template)
-    tree = sqlglot.parse_one(text, read="duckdb")
+    text, tree = query_text(template), _parse(template)
     header = "".join(line + "\n" for line in itertools.takewhile(lambda x: x.startswith("--"), text.splitlines()))
     union = "\nunion all\n".join(_for_phase(tree, k).sql("duckdb", pretty=True, comments=False) for k in range(1, int(phases) + 1))
     return f"{header}-- run for phases 1 .. {phases}\n{union}\n"
