@@ -519,7 +519,8 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                                                         path_lanes: pl.DataFrame, states: pl.DataFrame,
                                                         p: dict, dt: float) -> pl.DataFrame:
     """The ego, turning left (connection dir l/L), is stopped on green near its junction start while the actor,
-    from another incoming edge and near its own junction start, is about to cross the ego's path; the actor
+    from another incoming edge, approaches (near its own junction start, or past it and not yet at the ego's
+    path) to cross the ego's path; the actor
     clears the crossing before the ego reaches it, then the ego turns. From the ego's first such frame to its
     last frame inside the junction."""
     out_schema = {k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s", "source")}
@@ -538,9 +539,13 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
              .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
                      width_m="width_m", stopped=pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS))
-    foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
+    # the actor approaching: its front near its junction start, or past it and not yet at the ego's path (the
+    # conflict; tested below, once the conflict is known): on a skewed or large junction the car the ego stands
+    # for may be more than max_offset_from_junction_start into the junction
+    foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & (pl.col("front_m") >= lo)
+                        & (near | (pl.col("front_m") < pl.col("total_m") + pl.col("length_m")))).select(
         actor_id="vehicle_id", frame="frame", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
-        length_m_f="length_m")
+        length_m_f="length_m", front_m_f="front_m")
     zones = conflict_zones(links, path_lanes, stops["width_m"].unique().to_list(),
                            foes["width_m_f"].unique().to_list())
     pairs = (stops.join(foes, on="frame").filter((pl.col("ego_id") != pl.col("actor_id"))
@@ -568,7 +573,8 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
                .join(actor_in, on=["actor_id", "enter_m_f"])
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
-                       & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
+                       & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))
+                       & ((pl.col("front_m_f") <= hi) | (pl.col("frame") < pl.col("actor_in_frame")))))
     # the ego waits until the actor is in the junction: the actor's front is past its junction start within
     # the run of waiting frames or at most max_gap after it (a run that ends earlier is no wait for this actor;
     # the scenario's sequence bridges max_gap between one phase and the next, as when the light turns amber
