@@ -21,8 +21,7 @@ import shapely
 from logiq_sql.core.sql import materialise
 from logiq_sql.ingestion.ingest import ingest
 from logiq_sql.matching.runner import prepare_relations
-from logiq_sql.spec.plan import parse_ego, phase_steps, run_values
-from logiq_sql.spec.scenario import load_scenario
+from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
 
 LEFT_TURN = "unprotected_left_turn_with_yield_and_traffic_light"
 
@@ -115,13 +114,14 @@ def make_junction_db(tmp: Path, actors: list[pl.DataFrame], light: str | list[st
 
 
 def left_turn_frames(db: Path, ego: str = "auto", drives: list[str] | None = None,
-                     tables: tuple[str, ...] = ("phase_frames",)) -> dict[str, pl.DataFrame]:
+                     tables: tuple[str, ...] = ("phase_frames",),
+                     overrides: dict[str, str] | None = None) -> dict[str, pl.DataFrame]:
     """The left turn's per-frame conditions (and any other step table named in ``tables``), computed read-only
-    from an ingested file the way match() computes them. ``phase_frames`` is the frames step with each phase
-    query's ``holds`` as phase_1 .. phase_4."""
+    from an ingested file the way match() computes them (with match()'s ``overrides``). ``phase_frames`` is the
+    frames step with each phase query's ``holds`` as phase_1 .. phase_4."""
     import duckdb
 
-    s = load_scenario(LEFT_TURN)
+    s = resolve_scenarios([LEFT_TURN], overrides or {})[0]
     keys = "drive_id, ego_id, ego_passage, actor_id, actor_passage, frame"
     with duckdb.connect(str(db), read_only=True) as con:
         run = con.sql("select drive_id from drive_inputs").pl()

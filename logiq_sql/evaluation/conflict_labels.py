@@ -21,8 +21,9 @@ internal-lane shapes swept by the vType widths):
   kept standing after it;
 - *at a green*: E stood with its front within [``min_offset_from_junction_start``,
   ``max_offset_from_junction_start``] of the stop line and at most ``max_offset_from_traffic_light`` before it,
-  its link's signal green (``tls_states``: ``G``/``g``), while A was approaching (A's front past
-  ``min_offset_from_junction_start`` of its own stop line and A not yet clear), at a step after the last red of
+  its link's signal green (``tls_states``: ``G``/``g``), while A was approaching (A's front within
+  [``min_offset_from_junction_start``, ``max_offset_from_junction_start``] of its own stop line, or past it and not
+  yet at E's path, the conflict area; and A not yet clear), at a step after the last red of
   E's link before A's front reached its stop line (a red ends the occurrence: docs/semantics.md).
 
 Interval: from the first such standing step to E's last step with its front inside the junction.
@@ -141,11 +142,12 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
         (pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS) & pl.col("front_m").is_between(lo, hi)
         & (pl.col("front_m") >= -p["max_offset_from_traffic_light"] - EPS) & (pl.col("front_m") < pl.col("total_m"))
         & pl.col("link_state").is_in(GREEN)).select("ego_id", "frame", "t_s")
-    approaching = actor_rows.filter(pl.col("front_f") >= lo).select("actor_id", "frame")
-    starts = (pairs.select("ego_id", "actor_id", "actor_out").unique()
+    approaching = actor_rows.filter(pl.col("front_f") >= lo).select("actor_id", "frame", "front_f")
+    starts = (pairs.select("ego_id", "actor_id", "actor_out", "actor_in").unique()
               .join(last_red, on=["ego_id", "actor_id"], how="left")
               .join(standing, on="ego_id").join(approaching, on=["actor_id", "frame"])
               .filter((pl.col("frame") <= pl.col("actor_out"))
+                      & ((pl.col("front_f") <= hi) | (pl.col("frame") < pl.col("actor_in")))
                       & (pl.col("frame") > pl.col("last_red").fill_null(-1)))
               .group_by("ego_id", "actor_id").agg(start_s=pl.col("t_s").min()))
     inside = (ego_rows.group_by("ego_id")

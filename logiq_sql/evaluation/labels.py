@@ -384,6 +384,13 @@ GREEN = ("G", "g")  # SUMO link states of a green light: priority green and perm
 LEFT_TURN_DIRS = ("l", "L")   # SUMO connection dir of a left (and partly left) turn
 
 
+# load_signals' links and path_lanes
+LINK_SCHEMA = {"link": pl.String, "tl": pl.String, "link_index": pl.Int64, "dir": pl.String, "from_edge": pl.String,
+               "to_edge": pl.String, "total_m": pl.Float64, "shape": pl.List(pl.Float64)}
+PATH_LANE_SCHEMA = {"link": pl.String, "lane_id": pl.String, "start_m": pl.Float64, "lane_length_m": pl.Float64,
+                    "shape_length_m": pl.Float64}
+
+
 def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
     """(links, path_lanes, states) of a SUMO run folder, from its network and tls_states file.
 
@@ -430,12 +437,8 @@ def load_signals(folder: str | Path) -> tuple[pl.DataFrame, pl.DataFrame, pl.Dat
         lane_rows += [(link, lane, offset, None, None) for lane in edge_lanes.get(c.get("to"), [])]
         link_rows.append((link, c.get("tl"), int(c.get("linkIndex")), c.get("dir", ""), c.get("from"), c.get("to"),
                           offset, np.concatenate(coords).ravel().tolist()))
-    links = pl.DataFrame(link_rows, orient="row", schema={
-        "link": pl.String, "tl": pl.String, "link_index": pl.Int64, "dir": pl.String, "from_edge": pl.String,
-        "to_edge": pl.String, "total_m": pl.Float64, "shape": pl.List(pl.Float64)})
-    path_lanes = pl.DataFrame(lane_rows, orient="row", schema={
-        "link": pl.String, "lane_id": pl.String, "start_m": pl.Float64, "lane_length_m": pl.Float64,
-        "shape_length_m": pl.Float64})
+    links = pl.DataFrame(link_rows, orient="row", schema=LINK_SCHEMA)
+    path_lanes = pl.DataFrame(lane_rows, orient="row", schema=PATH_LANE_SCHEMA)
     tls_path = run_file(folder, ("tls_states*.xml", "tls_states*.xml.gz"), "signal state", "", required=False)
     if links.height and tls_path is None:
         raise InputError(f"{folder}: the network has traffic lights but the folder has no tls_states file. Fix: "
@@ -515,11 +518,36 @@ def on_paths(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame) 
             .drop("inner_m", "outer_m"))
 
 
+def ego_in_frames(pairs: pl.DataFrame, paths: pl.DataFrame) -> pl.DataFrame:
+    """The first frame the ego's box reaches each conflict: its front passes enter_m."""
+    return (pairs.select("ego_id", "enter_m").unique()
+            .join(paths.select(ego_id="vehicle_id", frame="frame", front_m="front_m"), on="ego_id")
+            .filter(pl.col("front_m") >= pl.col("enter_m") - EPS)
+            .group_by("ego_id", "enter_m").agg(ego_in_frame=pl.col("frame").min()))
+
+
+def actor_out_frames(pairs: pl.DataFrame, paths: pl.DataFrame) -> pl.DataFrame:
+    """The first frame the actor's box has left each conflict: its rear (front - length) is past leave_m_f."""
+    return (pairs.select("actor_id", "leave_m_f", "length_m_f").unique()
+            .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
+            .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
+            .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
+
+
+def actor_in_frames(pairs: pl.DataFrame, paths: pl.DataFrame) -> pl.DataFrame:
+    """The first frame the actor's box reaches each conflict: its front passes enter_m_f."""
+    return (pairs.select("actor_id", "enter_m_f").unique()
+            .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
+            .filter(pl.col("front_m") >= pl.col("enter_m_f") - EPS)
+            .group_by("actor_id", "enter_m_f").agg(actor_in_frame=pl.col("frame").min()))
+
+
 def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links: pl.DataFrame,
                                                         path_lanes: pl.DataFrame, states: pl.DataFrame,
                                                         p: dict, dt: float) -> pl.DataFrame:
     """The ego, turning left (connection dir l/L), is stopped on green near its junction start while the actor,
-    from another incoming edge and near its own junction start, is about to cross the ego's path; the actor
+    from another incoming edge, approaches (near its own junction start, or past it and not yet at the ego's
+    path) to cross the ego's path; the actor
     clears the crossing before the ego reaches it, then the ego turns. From the ego's first such frame to its
     last frame inside the junction."""
     out_schema = {k: LABEL_SCHEMA[k] for k in ("ego_id", "actor_id", "start_s", "end_s", "source")}
@@ -538,9 +566,13 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
              .filter(pl.col("state").str.slice(pl.col("link_index"), 1).is_in(GREEN))
              .select(ego_id="vehicle_id", frame="frame", t_s="t_s", link="link", from_edge="from_edge",
                      width_m="width_m", stopped=pl.col("speed_mps") <= p["stopping_car_speed_limit"] + EPS))
-    foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & near).select(
+    # the actor approaching: its front near its junction start, or past it and not yet at the ego's path (the
+    # conflict; tested below, once the conflict is known): on a skewed or large junction the car the ego stands
+    # for may be more than max_offset_from_junction_start into the junction
+    foes = paths.filter(pl.col("kind").is_in(p["kinds"]) & (pl.col("front_m") >= lo)
+                        & (near | (pl.col("front_m") < pl.col("total_m") + pl.col("length_m")))).select(
         actor_id="vehicle_id", frame="frame", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
-        length_m_f="length_m")
+        length_m_f="length_m", front_m_f="front_m")
     zones = conflict_zones(links, path_lanes, stops["width_m"].unique().to_list(),
                            foes["width_m_f"].unique().to_list())
     pairs = (stops.join(foes, on="frame").filter((pl.col("ego_id") != pl.col("actor_id"))
@@ -548,18 +580,8 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
              .join(zones, on=["link", "link_f", "width_m", "width_m_f"]))
     # the ego's box reaches the conflict when its front passes enter_m; the actor's has left it when its rear
     # (front - length) is past leave_m_f: the first frame of each
-    ego_in = (pairs.select("ego_id", "enter_m").unique()
-              .join(paths.select(ego_id="vehicle_id", frame="frame", front_m="front_m"), on="ego_id")
-              .filter(pl.col("front_m") >= pl.col("enter_m") - EPS)
-              .group_by("ego_id", "enter_m").agg(ego_in_frame=pl.col("frame").min()))
-    actor_out = (pairs.select("actor_id", "leave_m_f", "length_m_f").unique()
-                 .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
-                 .filter(pl.col("front_m") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
-                 .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out_frame=pl.col("frame").min()))
-    actor_in = (pairs.select("actor_id", "enter_m_f").unique()
-                .join(paths.select(actor_id="vehicle_id", frame="frame", front_m="front_m"), on="actor_id")
-                .filter(pl.col("front_m") >= pl.col("enter_m_f") - EPS)
-                .group_by("actor_id", "enter_m_f").agg(actor_in_frame=pl.col("frame").min()))
+    ego_in, actor_out, actor_in = (ego_in_frames(pairs, paths), actor_out_frames(pairs, paths),
+                                   actor_in_frames(pairs, paths))
     inside = (paths.filter(is_vehicle() & pl.col("dir").is_in(LEFT_TURN_DIRS))
               .group_by(ego_id="vehicle_id")
               .agg(end_s=pl.col("t_s").filter((pl.col("front_m") >= -EPS)
@@ -568,7 +590,8 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
     waiting = (pairs.join(ego_in, on=["ego_id", "enter_m"]).join(actor_out, on=["actor_id", "leave_m_f", "length_m_f"])
                .join(actor_in, on=["actor_id", "enter_m_f"])
                .filter((pl.col("frame") < pl.col("ego_in_frame"))
-                       & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))))
+                       & (pl.col("actor_out_frame") <= pl.col("ego_in_frame"))
+                       & ((pl.col("front_m_f") <= hi) | (pl.col("frame") < pl.col("actor_in_frame")))))
     # the ego waits until the actor is in the junction: the actor's front is past its junction start within
     # the run of waiting frames or at most max_gap after it (a run that ends earlier is no wait for this actor;
     # the scenario's sequence bridges max_gap between one phase and the next, as when the light turns amber
@@ -596,8 +619,23 @@ def unprotected_left_turn_with_yield_and_traffic_light(rows: pl.DataFrame, links
                .group_by(actor_id="vehicle_id").agg(crossed_frame=pl.col("frame").max()))
     # ... or A is the last actor to leave E's path of those whose front had reached it when E set off (E sets off
     # as the car it waited for clears its path), or left it at most max_gap before that one (phase 3 lasts until
-    # the set-off then)
-    outs = waiting.select(*keys, "actor_out_frame", "actor_in_frame").unique().join(set_off, on=keys)
+    # the set-off then). Over every vehicle of kinds from another entry that crossed E's path first, whether or
+    # not E stood for it on green: when the last one came through in the amber, E waited for it, not for the one
+    # before it
+    egos = stops.select("ego_id", "link", "from_edge", "width_m").unique()
+    crossers = (egos.join(paths.filter(pl.col("kind").is_in(p["kinds"])).select(
+        actor_id="vehicle_id", link_f="link", from_edge_f="from_edge", width_m_f="width_m",
+        length_m_f="length_m").unique(), how="cross")
+        .filter((pl.col("ego_id") != pl.col("actor_id")) & (pl.col("from_edge") != pl.col("from_edge_f"))))
+    every_zone = conflict_zones(links, path_lanes, egos["width_m"].unique().to_list(),
+                                crossers["width_m_f"].unique().to_list())
+    crossings = crossers.join(every_zone, on=["link", "link_f", "width_m", "width_m_f"])
+    outs = (crossings.join(ego_in_frames(crossings, paths), on=["ego_id", "enter_m"])
+            .join(actor_out_frames(crossings, paths), on=["actor_id", "leave_m_f", "length_m_f"])
+            .join(actor_in_frames(crossings, paths), on=["actor_id", "enter_m_f"])
+            .filter(pl.col("actor_out_frame") <= pl.col("ego_in_frame"))
+            .join(stood, on="ego_id").filter(pl.col("stop_frame") < pl.col("ego_in_frame"))
+            .group_by(*keys, "actor_out_frame", "actor_in_frame").agg(set_off=pl.col("stop_frame").max() + 1))
     # E's set-off on its turn is its latest over those actors: an E that rolls into the junction behind one car
     # and stands there for the oncoming ones sets off once, after the last stand
     last = (outs.filter(pl.col("actor_in_frame") <= pl.col("set_off")).group_by("ego_id")

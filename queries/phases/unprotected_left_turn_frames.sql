@@ -35,6 +35,9 @@
 --   actor_first                              the actor's box leaves the area before the ego's enters it
 --   ego_yields                               actor_first, and the ego's box has not reached the area yet: the
 --                                            ego is giving the right of way
+--   actor_approaching                        the actor's front is within [min, max]_offset_from_junction_start
+--                                            of its junction start, or past it and its box not yet at the
+--                                            ego's path (before actor_reach_frame)
 --   ego_has_stopped                          the ego stood (ego_stopped) at a frame of the current stretch of
 --                                            frames at which phase 1's other conditions all hold: it stops,
 --                                            then gives the right of way, pulling forward or standing
@@ -366,8 +369,12 @@ conditions as (
         coalesce(ego_offset_from_junction_start_m >= -$max_offset_from_traffic_light_m
             and coalesce(ego_offset_from_junction_end_m <= 0, true), false) as light_in_range,
         coalesce(light_state = 'green', false) as light_green,
+        -- near its junction start, or already inside the junction and its box not yet at the ego's path (the
+        -- encroachment area): on a skewed or large junction, or when the ego brakes late, the car it gives way
+        -- to is more than max_offset_from_junction_start into the junction when the ego stands
         coalesce(actor_offset_from_junction_start_m between $min_offset_from_junction_start_m
-            and $max_offset_from_junction_start_m, false) as actor_near_junction_start,
+            and $max_offset_from_junction_start_m
+            or (actor_offset_from_junction_start_m >= 0 and frame < actor_reach_frame), false) as actor_approaching,
         coalesce(actor_offset_from_junction_start_m >= 0
             and actor_offset_from_junction_end_m <= $ref_car_max_distance_from_junction_m, false)
             as actor_inside_junction,
@@ -388,9 +395,9 @@ waiting as (
     select
         *,
         actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range and light_green
-            and actor_near_junction_start and ego_yields as ego_waiting,
+            and actor_approaching and ego_yields as ego_waiting,
         max(case when not (actor_kind_ok and ego_turns_left and ego_near_junction_start and light_in_range
-                           and light_green and actor_near_junction_start and ego_yields) then frame end) over (
+                           and light_green and actor_approaching and ego_yields) then frame end) over (
             partition by drive_id, ego_id, ego_passage, actor_id, actor_passage order by frame
             rows between unbounded preceding and current row
         ) as waiting_since_frame,

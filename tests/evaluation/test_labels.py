@@ -17,6 +17,8 @@ import shapely.affinity
 from logiq_sql.core.errors import InputError, ScenarioError
 from logiq_sql.evaluation.labels import (
     LABEL_SCHEMA,
+    LINK_SCHEMA,
+    PATH_LANE_SCHEMA,
     SCENARIOS,
     box_corners,
     box_distance_m,
@@ -497,3 +499,62 @@ def test_the_evaluation_harness_does_not_import_the_cli():
     for name in ("simulate", "labels", "evaluate", "crosscheck"):
         closure = _imports_closure(f"logiq_sql.evaluation.{name}")
         assert "logiq_sql.cli" not in closure, name
+
+
+def _crossing_network() -> tuple[pl.DataFrame, pl.DataFrame]:
+    """(links, path_lanes) as load_signals gives them for a junction [-10, 10]^2 with one light C: link C:0 turns
+    left from the south (a quarter circle of radius 11.75 m about (-10, -10)), link C:1 goes straight from the
+    north (x = -1.75). Approaches 200 m long; the exits' lanes start where each path ends."""
+    a = np.linspace(0, np.pi / 2, 50)
+    arc = np.column_stack([-10 + 11.75 * np.cos(a), -10 + 11.75 * np.sin(a)])
+    straight = np.array([[-1.75, 10.0], [-1.75, -10.0]])
+    rows, lanes = [], []
+    for index, (shape, d, src, dst) in enumerate(((arc, "l", "S", "W"), (straight, "s", "N", "Sx"))):
+        length = float(np.linalg.norm(np.diff(shape, axis=0), axis=1).sum())
+        rows.append((f"C:{index}", "C", index, d, src, dst, length, shape.ravel().tolist()))
+        lanes += [(f"C:{index}", f":C_{index}_0", 0.0, length, length), (f"C:{index}", f"{src}_0", -200.0, None, None),
+                  (f"C:{index}", f"{dst}_0", length, None, None)]
+    return (pl.DataFrame(rows, orient="row", schema=LINK_SCHEMA),
+            pl.DataFrame(lanes, orient="row", schema=PATH_LANE_SCHEMA))
+
+
+def _on_path(vid: str, t: np.ndarray, front: np.ndarray, link: int, src: str, dst: str, total: float) -> pl.DataFrame:
+    """FCD-like rows of a car whose front is ``front`` metres past its stop line (SUMO lane and position)."""
+    lane = np.where(front < 0, f"{src}_0", np.where(front < total, f":C_{link}_0", f"{dst}_0"))
+    pos = np.where(front < 0, 200 + front, np.where(front < total, front, front - total))
+    speed = np.abs(np.gradient(front, t))
+    return pl.DataFrame({"vehicle_id": vid, "frame": np.round(t * 10).astype(np.int64), "t_s": t, "lane_id": lane,
+                         "lane_pos_m": pos, "speed_mps": np.where(speed < 1e-9, 0.0, speed), "kind": "vehicle",
+                         "length_m": 4.5, "width_m": 1.8})
+
+
+def test_the_left_turn_label_is_not_the_car_before_one_that_came_in_the_amber():
+    """The ego waits 3 m into the junction on green; a car from the north crosses its path at 4-6.7 s while the
+    light is green; the light turns amber at 10 s and red at 13 s; a second car, near its stop line only after
+    the green, crosses 11.5-14.2 s; the ego sets off at 13.5 s as it clears, to leave the junction. The ego
+    waited for the second car (the last to reach its path before it set off), which it did not stand for on
+    green: no occurrence (docs/semantics.md, phase 3 and "A red in between"; the matcher and the conflict
+    labeller agree). Looking for the last car only among the cars that approached on green, the phase labeller
+    credited the first car, which passed 7 s before the ego moved (SUMO, junction_skew15_cycle60 seed 972,
+    car_S_left.5: a truck in the amber)."""
+    from logiq_sql.evaluation.conflict_labels import candidates
+    from logiq_sql.evaluation.labels import scenario_values, unprotected_left_turn_with_yield_and_traffic_light
+
+    links, path_lanes = _crossing_network()
+    total = dict(links.select("link", "total_m").rows())
+    t = np.round(np.arange(0, 250) * 0.1, 6)
+    go = np.clip(t - 13.5, 0, None)
+    rows = pl.concat([
+        _on_path("ego", t, 3.0 + go**2, 0, "S", "W", total["C:0"]),
+        _on_path("first", t, 10 * (t - 4.0), 1, "N", "Sx", total["C:1"]),
+        _on_path("second", t, 10 * (t - 11.5), 1, "N", "Sx", total["C:1"]),
+    ])
+    states = pl.DataFrame({"tl": "C", "t_s": [0.0, 10.0, 13.0], "state": ["GG", "yy", "rr"]})
+    p = scenario_values([LEFT_TURN])[LEFT_TURN]
+    found = unprotected_left_turn_with_yield_and_traffic_light(rows, links, path_lanes, states, p, 0.1)
+    events = candidates(rows, links, path_lanes, states, p, 0.1)
+    # the drive is what the docstring says: both cars cross the ego's path first, the second one is the car the
+    # ego waited for, and it came near its stop line only after the green
+    assert events.filter(pl.col("crossed")).height == 2
+    assert events.filter("waited_for")["actor_id"].to_list() == ["second"]
+    assert found.is_empty(), found

@@ -432,3 +432,36 @@ def test_the_ego_sets_off_on_its_turn_after_its_last_stand(tmp_path):
     assert stops["actor_first"].all()
     result = match(path, scenarios=[SCENARIO])
     assert result.matches.select("actor_id").rows() == [("oncoming",)]
+
+
+def late_braking_ego_s(t: np.ndarray) -> np.ndarray:
+    """Drives at 9 m/s and brakes at 3 m/s^2 to stand with its centre 2 m before the junction at 6.3 s (its front
+    0.25 m into it), stands until 8.5 s, then turns as ego_s does."""
+    braking = np.where(t < 3.3, -15.5 - 9 * (3.3 - t), -2 - 1.5 * np.clip(6.3 - t, 0, None) ** 2)
+    go = np.clip(t - 8.5, 0, None)
+    return np.where(t < 8.5, braking, -2 + np.where(go < 3, go**2, 9 + 6 * (go - 3)))
+
+
+def test_the_ego_stops_for_a_car_already_deep_in_the_junction(tmp_path):
+    """The ego brakes late and comes to a stand (its speed over 0.5 s under 2 kph) only when the oncoming car's
+    front is more than max_offset_from_junction_start into the junction, its box not yet at the ego's path; it
+    stands until the car has passed, then turns. It stopped on green and gave the car the right of way: during
+    phase 1 the actor approaches, near its junction start or already inside the junction and not yet at the
+    ego's path (docs/semantics.md, phase 1). Read as "within max_offset_from_junction_start of its junction
+    start" only, phase 1 never held with the ego stopped and the yield was lost (SUMO, junction_skew30_cycle120
+    seed 975, car_E_left.0: the car 18.6 m along the skewed junction's through path, 10 m allowed, when the ego
+    stood). This junction's paths cross 11.6 m along the car's, so the window is narrowed to 5 m to leave the
+    car room between it and the ego's path."""
+    path = make_junction_db(tmp_path, [drive("ego", T, late_braking_ego_s(T), "S_left", is_ego=True),
+                                       drive("car", T, oncoming_s(T, enters_at=5.6), "N_straight")])
+    overrides = {"max_offset_from_junction_start": "5m"}
+    frames = left_turn_frames(path, ego="ego", overrides=overrides)["phase_frames"].sort("frame")
+    stood = frames.filter(pl.col("ego_stopped")).row(0, named=True)
+    # the drive is what the docstring says: when the ego first stands, the car's front is more than 5 m into the
+    # junction and its box has not yet reached the ego's path, which it clears before the ego's box gets there
+    assert stood["actor_offset_from_junction_start_m"] > 5
+    assert stood["frame"] < stood["actor_reach_frame"] < stood["actor_clear_frame"] <= stood["ego_encroachment_frame"]
+    result = match(path, scenarios=[SCENARIO], overrides=overrides)
+    assert result.matches.select("actor_id").rows() == [("car",)]
+    starts = result.match_phases.sort("phase_index")["start_s"].to_list()
+    assert starts[0] == pytest.approx(stood["t_s"], abs=0.01)  # the stop starts phase 1
