@@ -11,7 +11,11 @@
 --   ego_in_lane          the ego is in a lane (ego_lanes.lane_id)
 --   actor_kind_ok        the actor is of one of the kinds
 --   actor_behind         entirely behind the ego's rear bumper (dx < 0 and lon_gap > 0: an actor alongside, or
---                        overlapping the ego, is not following it)
+--                        overlapping the ego, is not following it), or behind it along the road: dx < 0, on a lane
+--                        that continues the ego's (same_lane) and that the ego drove before its present one in this
+--                        lane run, within same_road_limit, the boxes apart. Through a sharp turn the rear of a long
+--                        ego swings across the lane it came from, and the car following it round the corner is off
+--                        to the side of its rear on its new heading
 --   actor_on_ego_road    the actor's lane is the ego's lane, or a lane the ego drove in during the last
 --                        same_road_limit seconds of its lane run, or (while the ego is still in the first lane of
 --                        its lane run, so where it came from is unknown) its direct predecessor/successor
@@ -84,7 +88,14 @@ behind as (
         case when r.actor_speed_mps > 0
             then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / r.actor_speed_mps end
             as follow_headway_s,
-        r.lon_gap_m > 0 as actor_behind,
+        -- behind along the road: past the ego's rear bumper on its heading, or on a lane the ego drove before its
+        -- present one in the same line of lanes (a long ego turning sharply swings its rear across the lane behind
+        -- it, so a car following it round the corner is beside its rear on its new heading for a second or two),
+        -- boxes apart. Never a lane beside: a car alongside in a lane the ego drifted through is not behind it
+        r.lon_gap_m > 0
+            or (r.same_lane and road.lane_id is not null and r.actor_lane_id <> r.ego_lane_id
+                and r.box_distance_m > 0)
+            as actor_behind,
         coalesce(
             r.actor_lane_id = r.ego_lane_id
             or road.lane_id is not null

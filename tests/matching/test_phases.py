@@ -208,6 +208,44 @@ def test_the_gap_to_a_follower_behind_a_turn_runs_round_the_corner(tmp_path):
     assert run(db, FOLLOWER, overrides={"max_distance_from_sut_in_time_units": "7sec"}) == [("ego", "f", 0.0, 8.0)]
 
 
+
+def test_a_car_following_a_long_ego_round_a_sharp_turn_still_follows_it(tmp_path):
+    # A leads through the junction lane J into X, a 120-degree right turn of radius 6 m at x = 150. A 12 m ego
+    # (a bus) drives it at 4 m/s, a car 14 m behind (centre to centre: a 5.7 m bumper gap, 1.4 s). Through the
+    # turn the bus's rear swings across A, so for about 1.8 s the car, still on A, is off to the side of the
+    # bus's rear on its new heading (lon_gap_m = 0) though it is behind it along the road it drove; SUMO's
+    # leaderID says it follows all along (issue 36, junction_skew30_cycle120). Before, the match broke in two
+    # (0.0-6.9 s and 8.7-12.0 s)
+    t = times(12.0)
+    radius, turn = 6.0, np.radians(120.0)
+
+    def path(s):
+        bend = np.clip((s - 150) / radius, 0, turn)
+        beyond = np.maximum(s - 150 - turn * radius, 0)
+        x = np.where(s < 150, s, 150 + radius * np.sin(bend)) + beyond * np.cos(turn)
+        y = np.where(s < 150, Y1, Y1 - radius + radius * np.cos(bend)) - beyond * np.sin(turn)
+        return x, y
+
+    end_x, end_y = path(np.array(150 + turn * radius))
+    far_x, far_y = path(np.array(1150 + turn * radius))
+    side_x, side_y = LANE_W / 2 * np.sin(turn), LANE_W / 2 * np.cos(turn)  # half a lane across the exit
+
+    def ring(points):
+        return "POLYGON ((" + ", ".join(f"{x:.3f} {y:.3f}" for x, y in [*points, points[0]]) + "))"
+
+    lanes = [lane("A", 0.0, 0.0, 150.0),
+             dict(lane("J", 0.0), lane_id="J", centerline_wkt=f"LINESTRING (150 {Y1}, {end_x:.3f} {end_y:.3f})",
+                  polygon_wkt=ring([(150, LANE_W), (150, Y1 - radius - 3), (end_x + 3, Y1 - radius - 3),
+                                    (end_x + 3, LANE_W)])),
+             dict(lane("X", 0.0), lane_id="X",
+                  centerline_wkt=f"LINESTRING ({end_x:.3f} {end_y:.3f}, {far_x:.3f} {far_y:.3f})",
+                  polygon_wkt=ring([(end_x - side_x, end_y - side_y), (far_x - side_x, far_y - side_y),
+                                    (far_x + side_x, far_y + side_y), (end_x + side_x, end_y + side_y)]))]
+    links = [dict(map_id="road", lane_id=a, successor_id=b, turn=None) for a, b in (("A", "J"), ("J", "X"))]
+    bus = actor("ego", t, *path(130 + 4 * t), is_ego=True, length=12.0)
+    car = actor("f", t, *path(116 + 4 * t))
+    assert run(make_db(tmp_path, [bus, car], lanes, successors=links), FOLLOWER) == [("ego", "f", 0.0, 12.0)]
+
 # --- cyclist_close_to_moving_sut --------------------------------------------------------------------------
 
 def cyclist_at(t, x, y):

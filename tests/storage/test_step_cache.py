@@ -4,6 +4,7 @@ run that recomputes everything (``match --force``)."""
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -136,7 +137,7 @@ def own_follower(folder: Path, version: int, sql_text: str) -> Path:
     """follower_vehicle as a user's scenario (its phase query beside it), with this version and phase SQL."""
     (folder / "phases").mkdir(parents=True, exist_ok=True)
     toml = (ROOT / "scenarios/follower_vehicle.toml").read_text()
-    (folder / "follower_vehicle.toml").write_text(toml.replace("version = 4", f"version = {version}"))
+    (folder / "follower_vehicle.toml").write_text(re.sub(r"(?m)^version = \d+$", f"version = {version}", toml))
     (folder / "phases/follower_vehicle.sql").write_text(sql_text)
     sql.query_text.cache_clear()  # a new process would read the file again
     return folder
