@@ -5,11 +5,12 @@
     store (logiq_sql.storage.store)    one transaction per batch of drives; the outputs read back as Polars frames
 
 A run is incremental: a (drive, scenario) pair whose latest run had the same params_hash (scenario version and
-every bound value), ego mode and relation range is skipped (``force`` reruns it). The rest is matched and
-replaces that scenario's outputs on those drives in one transaction per batch of drives (MATCH_BATCH_ROWS), so
-memory stays bounded and an interrupted run keeps the batches it finished and the previous results of the rest.
-While a batch runs, its queries read only its drives' rows of tracks, track_lanes and traffic_light_states
-(``Engine.select_drives``), so a batch costs what its drives hold, whatever the file holds.
+every bound value), queries_hash (the text of every query it runs), ego mode and relation range is skipped
+(``force`` reruns it). The rest is matched and replaces that scenario's outputs on those drives in one transaction
+per batch of drives (MATCH_BATCH_ROWS), so memory stays bounded and an interrupted run keeps the batches it
+finished and the previous results of the rest. While a batch runs, its queries read only its drives' rows of
+tracks, track_lanes and traffic_light_states (``Engine.select_drives``), so a batch costs what its drives hold,
+whatever the file holds.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from logiq_sql.spec.plan import (
     DEFAULT_RELATION_RANGE,
     ego_key,
     parse_ego,
+    queries_hash,
     relation_kinds_csv,
     relation_range_m,
     relation_settings,
@@ -261,14 +263,15 @@ def match_batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_ro
 
 def drives_to_match(con: duckdb.DuckDBPyConnection, s: Scenario, run_drives: pl.DataFrame, ego: str,
                      range_m: float) -> pl.DataFrame:
-    """The drives of the run whose latest run of ``s`` differs in parameters, ego mode or relation range."""
+    """The drives of the run whose latest run of ``s`` differs in parameters, query texts, ego mode or relation
+    range."""
     with registered(con, "_wanted", run_drives):
         return con.sql(
             "select w.drive_id from _wanted as w where not exists (select 1 from drive_scenarios as d "
             "join match_runs as r on r.run_id = d.run_id and r.scenario = d.scenario "
-            "where d.drive_id = w.drive_id and d.scenario = $s and d.params_hash = $h and r.ego_mode = $ego "
-            "and r.relation_range_m = $range) order by w.drive_id",
-            params={"s": s.name, "h": s.params_hash(), "ego": ego, "range": range_m}).pl()
+            "where d.drive_id = w.drive_id and d.scenario = $s and d.params_hash = $h and r.queries_hash = $q "
+            "and r.ego_mode = $ego and r.relation_range_m = $range) order by w.drive_id",
+            params={"s": s.name, "h": s.params_hash(), "q": queries_hash(s), "ego": ego, "range": range_m}).pl()
 
 
 def read_result(con: duckdb.DuckDBPyConnection, run_drives: pl.DataFrame, names: list[str]) -> MatchResult:

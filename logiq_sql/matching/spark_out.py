@@ -24,7 +24,6 @@ the input dataset, so ``query``, ``report``, ``explain`` and notebooks read a Sp
 from __future__ import annotations
 
 import datetime as dt
-import json
 from pathlib import Path
 
 import duckdb
@@ -34,7 +33,14 @@ from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
 from logiq_sql.matching.runner import coverage_buckets, is_phase
 from logiq_sql.spec.contract import sample_columns
-from logiq_sql.spec.plan import IDENTIFY_QUERY, MATCH_PHASES_QUERY, MATCH_ROWS_STEP, SAMPLES_QUERY, phase_steps
+from logiq_sql.spec.plan import (
+    IDENTIFY_QUERY,
+    MATCH_PHASES_QUERY,
+    MATCH_ROWS_STEP,
+    SAMPLES_QUERY,
+    phase_steps,
+    run_record,
+)
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import tables
 from logiq_sql.storage.store import PERSISTED, STORED_ALWAYS
@@ -192,11 +198,8 @@ class SparkResults:
     def finish(self, con: duckdb.DuckDBPyConnection) -> None:
         """The run record, the coverage histograms over every sample in OUT, and the DuckDB views over OUT."""
         if self.totals:
-            rows = [{"run_id": self.run_id, "started_at": self.started, "scenario": s.name,
-                     "scenario_version": s.version, "params_hash": s.params_hash(),
-                     "params_json": json.dumps(s.bindings(), sort_keys=True),
-                     "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": self.ego, "drives": drives,
-                     "matches": found, "relation_range_m": self.range_m}
+            rows = [run_record(s, run_id=self.run_id, started_at=self.started, ego_mode=self.ego, drives=drives,
+                               matches=found, relation_range_m=self.range_m)
                     for s, drives, found in self.totals.values()]
             record = pl.DataFrame(rows, schema=tables.MATCH_RUNS.polars_schema)
             self.spark.createDataFrame(record.to_arrow(compat_level=pl.CompatLevel.oldest())).coalesce(1) \

@@ -9,10 +9,13 @@ every step binds, and the steps in order (also rendered as one readable statemen
 
 from __future__ import annotations
 
+import hashlib
+import json
+
 from logiq_sql.core import units
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.core.schema import EGO_KINDS, OBJECT_KINDS
-from logiq_sql.core.sql import per_phase
+from logiq_sql.core.sql import per_phase, query_text
 from logiq_sql.spec.contract import PHASE_VALUES, check_scenario
 from logiq_sql.spec.scenario import Scenario, ScenarioPath, list_scenarios, load_scenario
 
@@ -199,3 +202,23 @@ def result_steps(s: Scenario) -> list[tuple[str, str]]:
 def scenario_queries(s: Scenario) -> list[str]:
     """Every query file a run of ``s`` executes, in order."""
     return [rel for _, rel in [*scenario_steps(s), *result_steps(s)]]
+
+
+def queries_hash(s: Scenario) -> str:
+    """Short digest of the text of every query a run of ``s`` executes: a drive is up to date for ``s`` only while
+    this and the params_hash are those of its latest run, so an edited query reruns its drives without a version
+    bump (the step cache then recomputes the steps whose text changed and those after them)."""
+    digest = hashlib.sha256()
+    for rel in scenario_queries(s):
+        digest.update(rel.encode() + b"\0" + query_text(rel).encode() + b"\0")
+    return digest.hexdigest()[:16]
+
+
+def run_record(s: Scenario, *, run_id: str, started_at: str, ego_mode: str, drives: int, matches: int,
+               relation_range_m: float) -> dict[str, object]:
+    """The match_runs row of a run of ``s`` (docs/tables.md): the values it bound, so every match can be rerun."""
+    return {"run_id": run_id, "started_at": started_at, "scenario": s.name, "scenario_version": s.version,
+            "params_hash": s.params_hash(), "queries_hash": queries_hash(s),
+            "params_json": json.dumps(s.bindings(), sort_keys=True),
+            "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego_mode, "drives": drives,
+            "matches": matches, "relation_range_m": relation_range_m}

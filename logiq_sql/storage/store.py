@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as dt
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import polars as pl
 
 from logiq_sql.core.sql import header, query_text, recount_coverage
 from logiq_sql.core.timing import stage
+from logiq_sql.spec.plan import run_record
 from logiq_sql.spec.scenario import Scenario
 from logiq_sql.storage import tables
 from logiq_sql.storage.db import stored_schema
@@ -118,14 +118,10 @@ def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: 
                 "select min(started_at), coalesce(sum(drives), 0), coalesce(sum(matches), 0) from match_runs "
                 "where run_id = $r and scenario = $s", {"r": run_id, "s": s.name}).fetchall()
             con.execute("delete from match_runs where run_id = $r and scenario = $s", {"r": run_id, "s": s.name})
-            tables.insert(con, "match_runs", pl.DataFrame([{
-                "run_id": run_id, "started_at": before[0] or started, "scenario": s.name,
-                "scenario_version": s.version, "params_hash": s.params_hash(),
-                "params_json": json.dumps(s.bindings(), sort_keys=True),
-                "overrides": json.dumps(s.overrides, sort_keys=True), "ego_mode": ego,
-                "drives": before[1] + run_drives.height, "matches": before[2] + out.matches.height,
-                "relation_range_m": range_m,
-            }], schema=tables.MATCH_RUNS.polars_schema))
+            tables.insert(con, "match_runs", pl.DataFrame([run_record(
+                s, run_id=run_id, started_at=before[0] or started, ego_mode=ego,
+                drives=before[1] + run_drives.height, matches=before[2] + out.matches.height,
+                relation_range_m=range_m)], schema=tables.MATCH_RUNS.polars_schema))
         with stage("coverage"):
             recount_coverage(con)
         con.execute("commit")

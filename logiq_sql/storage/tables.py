@@ -106,13 +106,16 @@ MATCH_RUNS = Table(
            False),
         Column("matches", I, "Matches found on those drives.", False),
         Column("relation_range_m", F, "The --relation-range of the run, metres."),
+        Column("queries_hash", S, "Digest of the text of every query the scenario's run executed: a later run "
+               "reruns a drive whose latest run had another (an edited query), whatever the scenario version."),
     ),
 )
 
 DRIVE_SCENARIOS = Table(
     "drive_scenarios",
     "One row per (drive, scenario) of the latest run of that scenario over that drive. A later run skips the pair "
-    "while its run had the same params_hash, ego_mode and relation_range_m (match --force reruns it); re-ingesting "
+    "while its run had the same params_hash, queries_hash, ego_mode and relation_range_m (match --force reruns "
+    "it); re-ingesting "
     "the drive removes its rows.",
     (
         Column("drive_id", S, "Drive.", False),

@@ -11,8 +11,10 @@ import polars as pl
 import pytest
 
 from logiq_sql import ingest, match
+from logiq_sql.core import sql
 
-NGSIM = Path(__file__).parents[1] / "data/commonroad_ngsim/scenarios_2018b"
+ROOT = Path(__file__).resolve().parents[2]
+NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
 FIRST = [NGSIM / "USA_US101-22_1_T-1.xml.gz", NGSIM / "USA_US101-26_1_T-1.xml.gz"]
 LATER = NGSIM / "USA_US101-24_1_T-1.xml.gz"
 SCENARIOS = ["follower_vehicle", "sut_cut_out"]
@@ -174,3 +176,33 @@ def test_matching_in_batches_of_drives_gives_the_same_outputs(tmp_path, ingested
     assert runs.height == len(SCENARIOS) and (runs["drives"] == 3).all()
     assert runs.sort("scenario")["matches"].to_list() == (
         per_drive["matches"].group_by("scenario").len().sort("scenario")["len"].to_list())
+
+
+def test_an_edited_query_reruns_its_drives_at_the_same_scenario_version(ingested, tmp_path):
+    """An analyst edits a phase query and reruns without bumping the version: the drives are matched again with the
+    edited SQL (match_runs.queries_hash), not skipped as up to date with the old matches."""
+    db = ingested(tmp_path / "x.duckdb", "commonroad", FIRST)
+    folder = tmp_path / "mine"
+    (folder / "phases").mkdir(parents=True)
+    shutil.copy(ROOT / "scenarios/follower_vehicle.toml", folder)
+    query = folder / "phases/follower_vehicle.sql"
+    original = (ROOT / "queries/phases/follower_vehicle.sql").read_text()
+    query.write_text(original)
+    match(db, scenarios=["follower_vehicle"], scenario_path=folder)
+    before = snapshot(db)
+    # a follower only within half the maximum headway: fewer or shorter matches
+    changed = original.replace("<= $max_distance_from_sut_in_time_units_s", "<= $max_distance_from_sut_in_time_units_s / 2")
+    assert changed != original
+    query.write_text(changed)
+    sql.query_text.cache_clear()  # a new process would read the file again
+    result = match(db, scenarios=["follower_vehicle"], scenario_path=folder)
+    assert result.up_to_date == {"follower_vehicle": 0}
+    after = snapshot(db)
+    assert not after["matches"].drop("run_id").equals(before["matches"].drop("run_id"))
+    forced = tmp_path / "forced.duckdb"
+    shutil.copyfile(db, forced)
+    match(forced, scenarios=["follower_vehicle"], scenario_path=folder, force=True)
+    sql.query_text.cache_clear()
+    drop_run = {t: f.drop("run_id", "started_at", strict=False) for t, f in snapshot(forced).items()}
+    assert_same(drop_run, {t: f.drop("run_id", "started_at", strict=False) for t, f in after.items()},
+                skip=("match_runs",))
