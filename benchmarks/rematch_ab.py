@@ -8,6 +8,10 @@ the other version is this checkout. Each round runs ``match --force`` (every dri
 in a child process of its own, on copies of the file, and reads the child's CPU seconds (all threads) and wall
 time around the call. The file must have been ingested by the newer version (an older one ignores the columns
 it does not know). Prints the medians and base / this as the speed-up; checks both give the same matches.
+
+``--set NAME=VALUE`` (repeatable): after its ``match --force``, each child also re-matches with that parameter
+changed, as ``match --set`` does (the step cache holds what the forced run computed), and the same is reported
+for that re-match (``param_cpu_s``, ``param_wall_s``; same matches checked too).
 """
 
 from __future__ import annotations
@@ -33,14 +37,21 @@ start, c = time.perf_counter(), cpu()
 match(sys.argv[1], ego=sys.argv[2], force=True)
 wall, used = time.perf_counter() - start, cpu() - c
 import duckdb
-with duckdb.connect(sys.argv[1], read_only=True) as con:
-    matches = con.execute("select md5(string_agg(match_id, ',' order by match_id)) from matches").fetchone()[0]
-print(json.dumps({"wall_s": wall, "cpu_s": used, "matches": matches}))
+def matches():
+    with duckdb.connect(sys.argv[1], read_only=True) as con:
+        return con.execute("select md5(string_agg(match_id, ',' order by match_id)) from matches").fetchone()[0]
+out = {"wall_s": wall, "cpu_s": used, "matches": matches()}
+overrides = json.loads(sys.argv[3])
+if overrides:
+    start, c = time.perf_counter(), cpu()
+    match(sys.argv[1], ego=sys.argv[2], overrides=overrides)
+    out.update(param_wall_s=time.perf_counter() - start, param_cpu_s=cpu() - c, param_matches=matches())
+print(json.dumps(out))
 """
 
 
-def run(code: Path, db: Path, ego: str) -> dict[str, float]:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego], check=True, capture_output=True, text=True,
+def run(code: Path, db: Path, ego: str, overrides: dict[str, str]) -> dict[str, float]:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego, json.dumps(overrides)], check=True, capture_output=True, text=True,
                          env={"PYTHONPATH": str(code), "PATH": str(Path(sys.executable).parent)}, cwd=code)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -51,7 +62,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--base", default="main", help="git revision to compare with (default main)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--ego", default="every:10")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="also time a re-match with this parameter changed, after each forced one")
     args = parser.parse_args(argv)
+    overrides = dict(item.split("=", 1) for item in args.set)
     with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
         base = Path(tmp) / "base"
         base.mkdir()
@@ -63,15 +77,17 @@ def main(argv: list[str] | None = None) -> None:
             for name, code in versions.items():
                 copy = Path(tmp) / f"{name.replace('/', '_')}.duckdb"
                 shutil.copy(args.db, copy)
-                times[name].append(run(code, copy, args.ego))
+                times[name].append(run(code, copy, args.ego, overrides))
                 print(f"round {i + 1} {name}: {times[name][-1]}", flush=True)
-    med = {name: {k: statistics.median(t[k] for t in runs) for k in ("cpu_s", "wall_s")}
-           for name, runs in times.items()}
-    same = len({t["matches"] for runs in times.values() for t in runs}) == 1
-    for name, m in med.items():
-        print(f"{name}: median CPU {m['cpu_s']:.2f} s, wall {m['wall_s']:.2f} s over {args.rounds} re-matches")
-    print(f"speed-up (base / this): CPU {med[args.base]['cpu_s'] / med['this']['cpu_s']:.2f}x, "
-          f"wall {med[args.base]['wall_s'] / med['this']['wall_s']:.2f}x; same matches: {same}")
+    for label, prefix in (("match --force", ""), (f"re-match with {overrides}", "param_"))[:1 + bool(overrides)]:
+        med = {name: {k: statistics.median(t[prefix + k] for t in runs) for k in ("cpu_s", "wall_s")}
+               for name, runs in times.items()}
+        same = len({t[prefix + "matches"] for runs in times.values() for t in runs}) == 1
+        print(f"{label}:")
+        for name, m in med.items():
+            print(f"  {name}: median CPU {m['cpu_s']:.2f} s, wall {m['wall_s']:.2f} s over {args.rounds} runs")
+        print(f"  speed-up (base / this): CPU {med[args.base]['cpu_s'] / med['this']['cpu_s']:.2f}x, "
+              f"wall {med[args.base]['wall_s'] / med['this']['wall_s']:.2f}x; same matches: {same}")
 
 
 if __name__ == "__main__":

@@ -209,6 +209,14 @@ def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, value
         con.execute(f"set threads = {int(threads)}")
 
 
+def drop_temp(con: duckdb.DuckDBPyConnection, name: str) -> None:
+    """Drop the temp table or view ``name`` if there is one (a step's rows are either: the step cache's are
+    views)."""
+    (views,) = con.execute("select count(*) from duckdb_views() where temporary and view_name = $n",
+                           {"n": name}).fetchall()[0]
+    con.execute(f"drop {'view' if views else 'table'} if exists temp.main.{name}")
+
+
 def recount_coverage(con: duckdb.DuckDBPyConnection) -> None:
     """Rebuild the coverage histograms from every stored coverage sample (after matches were added or removed)."""
     con.execute("delete from coverage")

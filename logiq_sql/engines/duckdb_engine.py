@@ -23,6 +23,7 @@ class DuckEngine(Engine):
         self._shared: frozenset[tuple[str, tuple]] = frozenset()
         self._kept: dict[tuple[str, tuple], str] = {}  # a shared step -> the temp table holding its rows
         self._views: set[str] = set()  # step tables that are views of a kept table
+        self._loaded: set[str] = set()  # step tables that are views of the step cache's rows
         self._keys: dict[str, str | None] = {}  # the batch's step tables -> their cache keys (None: not cacheable)
 
     def _cache_key(self, text: str, bound: dict[str, object], reads: frozenset[str]) -> str | None:
@@ -39,9 +40,20 @@ class DuckEngine(Engine):
                 return None
         return self.cache.key(text, bound, inputs)
 
+    def _clear(self, table: str) -> None:
+        """Make way for a new ``table``: a view of that name (a shared step's, or the cache's rows) is dropped."""
+        if table in self._views or table in self._loaded:
+            self.con.execute(f"drop view if exists temp.main.{table}")
+            self._views.discard(table)
+            self._loaded.discard(table)
+
     def _cached(self, table: str, step: str, key: str | None, compute) -> None:
         """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept)."""
+        self._clear(table)
+        if key is not None:
+            self.con.execute(f"drop table if exists temp.main.{table}")
         if key is not None and self.cache.load(table, key):
+            self._loaded.add(table)
             self._keys[table] = key
             self.cache.record(self.owners, step, table, key, computed=False)
             return
@@ -53,11 +65,14 @@ class DuckEngine(Engine):
                               compute_s=time.process_time() - started)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
-        if table in self._views:  # a table cannot replace a view
-            self.con.execute(f"drop view {table}")
-            self._views.discard(table)
         text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
-        key = self._cache_key(text, bind(relative, values), tables_read(relative) - cte_names(relative))
+        reads = tables_read(relative) - cte_names(relative)
+        key = self._cache_key(text, bind(relative, values), reads)
+        if not reads:  # rows of the bound values alone (a scenario's phase limits): keyed, never worth keeping
+            self._clear(table)
+            self._compute(table, relative, values, holding)
+            self._keys[table] = key
+            return
         self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
 
     def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
@@ -84,7 +99,7 @@ class DuckEngine(Engine):
 
     def _forget_shared(self) -> None:
         for view in self._views:
-            self.con.execute(f"drop view if exists {view}")
+            self.con.execute(f"drop view if exists temp.main.{view}")
         for kept in self._kept.values():
             self.con.execute(f"drop table if exists {kept}")
         self._shared, self._kept, self._views = frozenset(), {}, set()
@@ -93,6 +108,7 @@ class DuckEngine(Engine):
         return self.con.sql(as_query(sql)).pl()
 
     def register(self, table: str, frame: pl.DataFrame) -> None:
+        self._clear(table)
         copy_into_duckdb(self.con, table, frame)
         self._keys[table] = None  # rows from elsewhere: steps reading them are not cached
 

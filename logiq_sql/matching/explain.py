@@ -49,13 +49,17 @@ from logiq_sql.spec.plan import (
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
 from logiq_sql.storage import db
 
+# the pairs' ids by their integer keys, from the phases' rows (the phase contract returns both)
+_PAIR_IDS = """
+create or replace temp table _pair_ids as
+select distinct drive_key, ego_key, actor_key, drive_id, ego_id, actor_id from ({phases})
+"""
 # the match steps' rows with the pair's ids beside its integer keys (they join and group on the keys only)
 _WITH_IDS = """
 create or replace temp view {table}_ids as
-select e.drive_id, e.actor_id as ego_id, a.actor_id, s.*
+select i.drive_id, i.ego_id, i.actor_id, s.*
 from {table} as s
-inner join actor_keys as e on s.drive_key = e.drive_key and s.ego_key = e.actor_key
-inner join actor_keys as a on s.drive_key = a.drive_key and s.actor_key = a.actor_key
+inner join _pair_ids as i on s.drive_key = i.drive_key and s.ego_key = i.ego_key and s.actor_key = i.actor_key
 """
 # per pair: the furthest chain, and the frame at which its next phase was needed
 _PROGRESS = """
@@ -191,6 +195,9 @@ def _read_steps(con, s: Scenario, values: dict[str, object]):
     prepare_relations(con, [s], values, every_kind=True)  # the pairs it cannot match, too
     for table, rel in phase_steps(s):
         materialise(con, table, rel, values)
+    con.execute(_PAIR_IDS.format(phases=" union all ".join(
+        f"select drive_key, ego_key, actor_key, drive_id, ego_id, actor_id from phase_{i}"
+        for i in range(1, len(s.phases) + 1))))
     for table in ("chain", "phase_runs"):
         con.execute(_WITH_IDS.format(table=table))
     score = " + ".join(f"cast(coalesce({c.name}, false) as integer)" for c in s.phases[0].conditions)

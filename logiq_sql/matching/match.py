@@ -26,7 +26,7 @@ import polars as pl
 
 from logiq_sql.core.batching import batches
 from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
-from logiq_sql.core.sql import registered, render_steps
+from logiq_sql.core.sql import drop_temp, registered, render_steps
 from logiq_sql.engines import check_engine, open_engine
 from logiq_sql.engines.spark_engine import render_for_engine
 from logiq_sql.matching import relations_of
@@ -189,7 +189,7 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
                     runner.register("run_drives", todo)
                 say(f"[{step}/{len(work)}] {len(batch)} drive(s): {', '.join(s.name for s in group)}")
                 for table in PERSISTED:  # a group keeps only the tables it computes, for its own drives
-                    con.execute(f"drop table if exists temp.main.{table}")
+                    drop_temp(con, table)
                 runner.select_drives()
                 values = {s.name: run_values(s, ego_values, range_m) for s in group}
                 prepare_relations(runner, group, values[group[0].name])

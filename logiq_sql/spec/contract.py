@@ -21,8 +21,9 @@ from logiq_sql.core.sql import parsed, placeholders, shown_path, unit_constant
 from logiq_sql.spec.scenario import Scenario
 
 # the columns every phase query returns (one row per pair and frame; rows where the phase does not hold may be
-# left out)
-PHASE_COLUMNS = ("drive_id", "ego_id", "actor_id", "frame", "t_s", "segment", "holds")
+# left out): the pair by its ids (for people) and by its integer keys (what the match steps after it read)
+PHASE_COLUMNS = ("drive_id", "ego_id", "actor_id", "drive_key", "ego_key", "actor_key", "frame", "t_s", "segment",
+                 "holds")
 # values every run binds besides the scenario's parameters (logiq_sql.spec.plan.run_values)
 RUN_VALUES = (
     "max_gap_s", "phase_count", "ego_mode", "ego_every", "ego_actor_ids_csv", "ego_kinds_csv", "relation_range_m",

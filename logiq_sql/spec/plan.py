@@ -3,7 +3,7 @@ every step binds, and the steps in order (also rendered as one readable statemen
 
     egos -> lane_line, lane_neighbours, actor_lanes, ego_lanes -> relations     shared by the scenarios of a group
     [junction steps, encroachments]                                              scenarios with junctions = true
-    [scenario_frames] -> phase_1 .. phase_n -> actor_keys, phase_frames, scenario_phases -> phase_runs -> chain
+    [scenario_frames] -> phase_1 .. phase_n -> phase_frames, scenario_phases -> phase_runs -> chain
         -> scenario_match -> scenario_matches, scenario_match_phases                   per scenario
 """
 
@@ -42,7 +42,6 @@ JUNCTION_STEPS = (
 )
 # the phases as rows: each a select written for phase 1, run for every phase of a scenario (sql.per_phase), its
 # rows keyed by the actors' integer keys
-ACTOR_KEYS_QUERY = "match/actor_keys.sql"
 PHASE_FRAMES_QUERY = "match/phase_frames.sql"
 SCENARIO_PHASES_QUERY = "match/scenario_phases.sql"
 # the generic steps every scenario's phases go through (the phase contract, docs/scenarios.md)
@@ -176,7 +175,7 @@ def phase_steps(s: Scenario) -> list[tuple[str, str]]:
     the generic runs, chain and match."""
     steps = [("scenario_frames", s.frames_query)] if s.frames_query else []
     steps += [(f"phase_{i}", p.query) for i, p in enumerate(s.phases, 1)]
-    steps += [("actor_keys", ACTOR_KEYS_QUERY), ("phase_frames", per_phase(PHASE_FRAMES_QUERY, len(s.phases))),
+    steps += [("phase_frames", per_phase(PHASE_FRAMES_QUERY, len(s.phases))),
               ("scenario_phases", per_phase(SCENARIO_PHASES_QUERY, len(s.phases)))]
     return [*steps, *MATCH_STEPS]
 

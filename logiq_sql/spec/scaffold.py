@@ -54,6 +54,9 @@ conditions as (
         r.drive_id,
         r.ego_id,
         r.actor_id,
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
         r.frame,
         r.t_s,
         0 as segment,  -- nothing cuts the phase; e.g. the Ego's lane run would end it at a lane change

@@ -50,7 +50,8 @@ def docs_markdown() -> str:
             "traffic_light.", "",
             "## `step_cache_<key>`", "",
             "The rows of one step of a match run, for every drive whose `step_cache` entry names the table: the "
-            "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them. "
+            "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them, or, "
+            "for a step whose rows carry only `drive_key`, `cached_drive_id` beside them. "
             "`match` reads them back instead of running the step again when the step's query text, bound values "
             "and inputs and the drive's ingest version are the same (`logiq_sql/storage/step_cache.py`; README, 'The step "
             "cache'). Rows no entry refers to are deleted, a table with none dropped; `logiq-sql cache --db FILE` "

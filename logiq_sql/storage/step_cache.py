@@ -5,7 +5,9 @@ step tables it reads (so a changed step changes every step downstream of it), th
 What it reads of the canonical tables is the drive's: the index (``step_cache``) records, per scenario, step and
 drive, the key and the drive's ``ingest_versions.ingest_version`` it was computed from. A batch of drives reads a
 step from the cache only when every drive of the batch has an entry of that key for its current ingest version;
-else the step runs and its rows replace the batch's entry. The rows of one key live in ``step_cache_<key>``.
+else the step runs and its rows replace the batch's entry. The rows of one key live in ``step_cache_<key>``. A
+step whose rows carry the drive only by its integer key (``drive_key``: the match steps after the phases) is kept
+with the drive's id beside each row (``cached_drive_id``), by which its rows are read and dropped like the others.
 
 Size stays bounded: each scenario keeps one entry per step and drive (its latest), and rows no scenario refers to
 any more are deleted, a table with none dropped. Re-ingesting a drive (or another drive on its map) gives it a new
@@ -34,6 +36,8 @@ from logiq_sql.storage.db import stored_schema
 
 CACHE_FORMAT = "1"  # bump when what a key covers changes
 TABLE_PREFIX = "step_cache_"
+# the drive of each row of a step that carries only drive_key, added when its rows are kept
+DRIVE_ID_KEPT = "cached_drive_id"
 # every step is kept until this many cells were written in the run: a write has a fixed cost, so the cost per cell
 # of a few small tables would make every large one look too dear to keep
 CALIBRATION_CELLS = 1_000_000
@@ -86,11 +90,18 @@ def cache_tables(con: duckdb.DuckDBPyConnection) -> list[str]:
         "and database_name = current_database() order by table_name", {"p": TABLE_PREFIX}).fetchall()]
 
 
+def drive_column(con: duckdb.DuckDBPyConnection, table: str) -> str:
+    """The column that names the drive of each row of the cache table ``table``."""
+    (kept,) = con.execute("select count(*) from duckdb_columns() where table_name = $t and column_name = $c "
+                          "and database_name = current_database()", {"t": table, "c": DRIVE_ID_KEPT}).fetchall()[0]
+    return DRIVE_ID_KEPT if kept else "drive_id"
+
+
 def drop_drives(con: duckdb.DuckDBPyConnection, drives: str) -> None:
     """Drop every cache entry of the drives of the query ``drives`` (a select of drive_id)."""
     stored = stored_schema(con)
     for table in cache_tables(con):
-        con.execute(f"delete from {stored}.{table} where drive_id in ({drives})")
+        con.execute(f"delete from {stored}.{table} where {drive_column(con, table)} in ({drives})")
     con.execute(f"delete from step_cache where drive_id in ({drives})")
     _drop_unreferenced(con, stored)
 
@@ -153,10 +164,11 @@ class StepCache:
     def start_batch(self) -> None:
         """The batch's drives (``run_drives``) with their ingest versions; the cache is off for the batch when a
         drive has none."""
-        self.con.execute("create or replace temp table _batch_versions as select r.drive_id, v.ingest_version "
-                         "from run_drives as r left join ingest_versions as v using (drive_id)")
-        (missing, n) = self.con.execute("select count(*) filter (where ingest_version is null), count(*) "
-                                        "from _batch_versions").fetchall()[0]
+        self.con.execute("create or replace temp table _batch_versions as select r.drive_id, v.ingest_version, "
+                         "d.drive_key from run_drives as r left join ingest_versions as v using (drive_id) "
+                         "left join (select distinct drive_id, drive_key from drive_inputs) as d using (drive_id)")
+        (missing, n) = self.con.execute("select count(*) filter (where ingest_version is null or drive_key is null), "
+                                        "count(*) from _batch_versions").fetchall()[0]
         self._usable = n > 0 and missing == 0
         self._batch = tuple(r[0] for r in self.con.execute("select drive_id from _batch_versions "
                                                              "order by drive_id").fetchall())
@@ -181,14 +193,22 @@ class StepCache:
             "and c.scenario in (select scenario from _owners)", {"s": step, "k": key}).fetchall()[0][0]
 
     def load(self, table: str, key: str) -> bool:
-        """Make the temp table ``table`` the cached rows of ``key`` for the batch, if every drive has them."""
+        """Make the temp view ``table`` the cached rows of ``key`` for the batch, if every drive has them (no temp
+        table or view may have that name). A view, not a copy: the steps that read it scan the kept rows once
+        each, where a copy scanned them and wrote them again; valid until the next batch."""
         if not (self._usable and self.read):
             return False
         if not self._holds(key):
             return False
-        self.con.execute(f"create or replace temp table {table} as select * from "
-                         f"{stored_schema(self.con)}.{TABLE_PREFIX}{key} "
-                         "where drive_id in (select drive_id from _batch_versions)")
+        data = f"{TABLE_PREFIX}{key}"
+        column = drive_column(self.con, data)
+        columns = "*" if column == "drive_id" else f"* exclude ({column})"
+        # a table holds only the rows of the drives whose entries name it: when those are all of the batch, no
+        # row needs filtering out
+        (others,) = self.con.execute("select count(*) from step_cache where step_key = $k and drive_id not in "
+                                     "(select drive_id from _batch_versions)", {"k": key}).fetchall()[0]
+        where = f" where {column} in (select drive_id from _batch_versions)" if others else ""
+        self.con.execute(f"create temp view {table} as select {columns} from {stored_schema(self.con)}.{data}{where}")
         return True
 
     def record(self, owners: tuple[str, ...], step: str, table: str, key: str, computed: bool,
@@ -206,9 +226,13 @@ class StepCache:
             columns = {r[0] for r in con.execute(
                 "select column_name from duckdb_columns() where table_name = $t and database_name = 'temp'",
                 {"t": table}).fetchall()}
-            if "drive_id" not in columns:  # rows not per drive (a map's lanes, a match's KPIs): no entry
+            if not columns & {"drive_id", "drive_key"}:  # rows not per drive (a map's lanes, a KPI's): no entry
                 self.uncached += 1
                 return
+            # the rows to keep: with the drive's id beside them when they carry only its key
+            rows_of = (f"temp.main.{table}" if "drive_id" in columns else
+                       f"(select b.drive_id as {DRIVE_ID_KEPT}, t.* from temp.main.{table} as t "
+                       "inner join _batch_versions as b on t.drive_key = b.drive_key)")
         self.steps.append((self._batch, owners, step, "computed" if computed else "reused"))
         if computed:
             self.computed += 1
@@ -226,7 +250,7 @@ class StepCache:
             # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
             # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
             if data not in cache_tables(con):
-                con.execute(f"create table {stored}.{data} as select * from temp.main.{table} limit 0")
+                con.execute(f"create table {stored}.{data} as select * from {rows_of} limit 0")
                 tables.comment_derived(con, f"{stored}.{data}", data,
                                    f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
@@ -235,21 +259,22 @@ class StepCache:
         with registered(con, "_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String})):
             if not write and self._entries(step, key) == len(owners) * len(self._batch):
                 return  # each owner's entry already names this key for every drive of the batch
-            self._point_entries(step, key, table, data, write)
+            self._point_entries(step, key, rows_of if write else "", data, write)
             if write:
                 self._write_s += time.process_time() - started
                 self._cells += cells
 
-    def _point_entries(self, step: str, key: str, table: str, data: str, write: bool) -> None:
-        """In one transaction: the batch's rows of ``table`` written to ``data`` (``write``), the entries of the
-        owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry refers to any more
-        removed."""
+    def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool) -> None:
+        """In one transaction: the batch's rows (``rows_of``, a table or subquery) written to ``data`` (``write``),
+        the entries of the owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry
+        refers to any more removed."""
         con, stored = self.con, stored_schema(self.con)
         con.execute("begin transaction")
         try:
             if write:
-                con.execute(f"delete from {stored}.{data} where drive_id in (select drive_id from _batch_versions)")
-                con.execute(f"insert into {stored}.{data} select * from temp.main.{table}")
+                con.execute(f"delete from {stored}.{data} where {drive_column(con, data)} in "
+                            "(select drive_id from _batch_versions)")
+                con.execute(f"insert into {stored}.{data} select * from {rows_of}")
             con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
                         "from step_cache where step = $s and step_key <> $k and scenario in (select scenario from "
                         "_owners) and drive_id in (select drive_id from _batch_versions)", {"s": step, "k": key})
@@ -259,8 +284,9 @@ class StepCache:
                         "from _owners as o, _batch_versions as b", {"s": step, "k": key, "t": data})
             for (old, old_table) in con.execute("select distinct step_key, table_name from _replaced").fetchall():
                 # the drives whose rows of the old key no entry refers to any more
-                con.execute(f"delete from {stored}.{old_table} where drive_id in (select drive_id from _replaced "
-                            "where step_key = $o) and drive_id not in (select drive_id from step_cache where "
+                column = drive_column(con, old_table)
+                con.execute(f"delete from {stored}.{old_table} where {column} in (select drive_id from _replaced "
+                            f"where step_key = $o) and {column} not in (select drive_id from step_cache where "
                             "step_key = $o)", {"o": old})
                 if not con.execute("select count(*) from step_cache where step_key = $o", {"o": old}).fetchall()[0][0]:
                     con.execute(f"drop table {stored}.{old_table}")

@@ -70,7 +70,8 @@ def store_batch(con: duckdb.DuckDBPyConnection, run_id: str, ego: str, range_m: 
     of PERSISTED only with ``keep``) in one transaction."""
     started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
     stored = stored_schema(con)  # the run's temp tables shadow the stored ones of the same name
-    made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary").fetchall()}
+    made = {r[0] for r in con.execute("select table_name from duckdb_tables() where temporary union all "
+                                      "select view_name from duckdb_views() where temporary").fetchall()}
     for table in (t for t in PERSISTED if t in made and (keep or t in STORED_ALWAYS)):
         # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
         # keeps the empty table's statistics, so filters on it (`where drive_id = ...`, the delete below in a

@@ -2,8 +2,8 @@
 -- grain: one row per (match, phase) of a scenario: the match interval [start, end] and the phase's interval in it
 --        (phase_index; phase_start_*, phase_end_*), one row for each of the scenario's phases; the pair by its ids
 --        and its integer keys (drive_key, ego_key, actor_key), on which every join and window here is made
--- reads: chain (match/chain.sql over phase_runs), scenario_phases (the phases' duration limits), tracks,
---        drive_inputs, actor_keys (the ids of the keys, for the output)
+-- reads: chain (match/chain.sql over phase_runs), scenario_phases (the phases' duration limits), tracks (the ego's
+--        times, and the ids of the keys for the output), drive_inputs
 -- params: $phase_count, $max_gap_s
 --
 -- Every scenario, whatever its number of phases, is matched by this query (docs/semantics.md, "Phases and matches"):
@@ -92,6 +92,18 @@ ego_tracks as (
     from tracks as t
     inner join (select distinct drive_key, ego_key from spans) as s
         on t.drive_key = s.drive_key and t.actor_key = s.ego_key
+),
+
+pair_ids as (
+    -- the ids of the chains' egos and actors, for the output
+    select distinct t.drive_key, t.actor_key, t.drive_id, t.actor_id
+    from tracks as t
+    inner join (
+        select drive_key, ego_key as actor_key from spans
+        union all
+        select drive_key, actor_key from spans
+    ) as s
+        on t.drive_key = s.drive_key and t.actor_key = s.actor_key
 ),
 
 ego_frames as (
@@ -225,9 +237,9 @@ select
     m.ego_key,
     m.actor_key
 from matched as m
-inner join actor_keys as e
+inner join pair_ids as e
     on m.drive_key = e.drive_key and m.ego_key = e.actor_key
-inner join actor_keys as a
+inner join pair_ids as a
     on m.drive_key = a.drive_key and m.actor_key = a.actor_key
 where m.durations_ok = 1
     and m.chain_s >= $max_gap_s - 1e-6

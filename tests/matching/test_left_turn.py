@@ -155,11 +155,10 @@ def _chain(islands: list[tuple[int, int, int]], phase_count: int, max_gap_frames
         [(k, 1, 1, 2, s, e, max_gap_frames, False) for k, s, e in islands], orient="row",
         schema=["phase_index", "drive_key", "ego_key", "actor_key", "start_frame", "end_frame", "max_gap_frames",
                 "jitter"]))
-    con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": "e", "drive_key": 1, "actor_key": 1,
-                                         "frame": range(200), "t_s": [f / 10 for f in range(200)]}))
+    con.register("tracks", pl.DataFrame({"drive_id": "d", "actor_id": ["e"] * 200 + ["a"], "drive_key": 1,
+                                         "actor_key": [1] * 200 + [2], "frame": [*range(200), 0],
+                                         "t_s": [f / 10 for f in range(200)] + [0.0]}))
     con.register("drive_inputs", pl.DataFrame({"drive_id": ["d"], "drive_key": [1], "dt_s": [0.1]}))
-    con.register("actor_keys", pl.DataFrame({"drive_id": "d", "actor_id": ["e", "a"], "drive_key": 1,
-                                             "actor_key": [1, 2]}))
     values = {"phase_count": phase_count, "max_gap_s": 0.0,
               **{f"phase_{i}_{what}": value for i in range(1, phase_count + 1)
                  for what, value in (("name", f"p{i}"), ("min_duration_s", 0.0), ("max_duration_s", None))}}

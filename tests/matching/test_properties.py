@@ -21,8 +21,9 @@ from logiq_sql.matching.runner import coverage_buckets
 
 DT = 0.1
 PROFILE = settings(max_examples=60, deadline=None, derandomize=True)
-PHASE_SCHEMA = {"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "frame": pl.Int64,
-                "t_s": pl.Float64, "segment": pl.Int64, "holds": pl.Boolean}
+PHASE_SCHEMA = {"drive_id": pl.String, "ego_id": pl.String, "actor_id": pl.String, "drive_key": pl.Int64,
+                "ego_key": pl.Int64, "actor_key": pl.Int64, "frame": pl.Int64, "t_s": pl.Float64, "segment": pl.Int64,
+                "holds": pl.Boolean}
 
 
 def run(query: str, inputs: dict[str, pl.DataFrame], values: dict[str, object] | None = None) -> pl.DataFrame:
@@ -46,9 +47,11 @@ def bridged_runs(frames: list[int], gap: int = 0) -> list[tuple[int, int]]:
 
 
 DRIVES = pl.DataFrame({"drive_id": ["d"], "drive_key": [1], "dt_s": [DT]})
-# the integer keys of the drive's actors (match/actor_keys.sql): the ego e, the actors a, b and the cyclist c
+# the integer keys of the drive's actors (tracks.actor_key): the ego e, the actors a, b and the cyclist c
 KEYS = {"e": 1, "a": 2, "b": 3, "c": 4}
-ACTOR_KEYS = pl.DataFrame({"drive_id": "d", "actor_id": list(KEYS), "drive_key": 1, "actor_key": list(KEYS.values())})
+# a track row of each actor but the ego (whose rows each test writes): where match/sequential.sql reads their ids
+OTHER_ACTORS = pl.DataFrame({"drive_id": "d", "actor_id": [a for a in KEYS if a != "e"], "drive_key": 1,
+                             "actor_key": [k for a, k in KEYS.items() if a != "e"], "frame": 0, "t_s": 0.0})
 
 
 # --- runs -----------------------------------------------------------------------------------------------------------
@@ -65,9 +68,10 @@ def test_phase_runs_are_the_bridged_runs_of_each_phase_and_segment(pairs, max_ga
     rows = [(actor, f, flags, seg) for actor, frames in pairs.items() for f, present in enumerate(frames)
             if present is not None for flags, seg in present]
     phases = {f"phase_{i + 1}": pl.DataFrame(
-        [{"drive_id": "d", "ego_id": "e", "actor_id": a, "frame": f, "t_s": f * DT, "segment": seg, "holds": p[i]}
+        [{"drive_id": "d", "ego_id": "e", "actor_id": a, "drive_key": 1, "ego_key": KEYS["e"], "actor_key": KEYS[a],
+          "frame": f, "t_s": f * DT, "segment": seg, "holds": p[i]}
          for a, f, p, seg in rows], schema=PHASE_SCHEMA) for i in range(4)}
-    frames = run(per_phase("match/phase_frames.sql", 4), {**phases, "actor_keys": ACTOR_KEYS})
+    frames = run(per_phase("match/phase_frames.sql", 4), phases)
     got = run("match/phase_runs.sql", {"phase_frames": frames, "drive_inputs": DRIVES}, {"max_gap_s": max_gap_s})
     got = sorted(got.select("phase_index", "actor_key", "segment", "start_frame", "end_frame", "jitter").iter_rows())
     gap = math.floor(max_gap_s / DT + 1e-9)
@@ -148,11 +152,11 @@ def test_two_phases_chain_by_the_one_rule_and_trim_to_the_limits(n, min1, min2, 
                            "frame": ego_frames, "t_s": [round(f * DT, 6) for f in ego_frames]},
                           schema={"drive_id": pl.String, "actor_id": pl.String, "drive_key": pl.Int64,
                                   "actor_key": pl.Int64, "frame": pl.Int64, "t_s": pl.Float64})
+    tracks = pl.concat([tracks, OTHER_ACTORS], how="diagonal_relaxed")
     values = {"phase_count": 2, "max_gap_s": 0.0, "phase_1_min_duration_s": min1, "phase_2_min_duration_s": min2,
               "phase_1_max_duration_s": max1, "phase_2_max_duration_s": max2, "phase_1_name": "p1", "phase_2_name": "p2"}
     con = duckdb.connect()
-    for name, frame in (("phase_runs", runs), ("tracks", tracks), ("drive_inputs", DRIVES),
-                        ("actor_keys", ACTOR_KEYS)):
+    for name, frame in (("phase_runs", runs), ("tracks", tracks), ("drive_inputs", DRIVES)):
         con.register(f"_{name}", frame)
         con.execute(f"create temp table {name} as select * from _{name}")
     materialise(con, "scenario_phases", per_phase("match/scenario_phases.sql", 2), values)
@@ -242,10 +246,12 @@ def test_cyclist_phase_cuts_episodes_into_pieces_of_at_most_the_maximum(frames, 
                           schema={"drive_id": pl.String, "actor_id": pl.String, "frame": pl.Int64, "t_s": pl.Float64,
                                   "speed_mps": pl.Float64})
     tracks = tracks.with_columns(drive_key=pl.lit(1, pl.Int64), actor_key=pl.lit(KEYS["e"], pl.Int64))
+    tracks = pl.concat([tracks, OTHER_ACTORS], how="diagonal_relaxed")
+    relations = relations.with_columns(drive_key=pl.lit(1, pl.Int64), ego_key=pl.lit(KEYS["e"], pl.Int64),
+                                       actor_key=pl.lit(KEYS["c"], pl.Int64))
     drives = pl.DataFrame({"drive_id": ["d"], "drive_key": [1], "dt_s": [dt]})
     con = duckdb.connect()
-    for name, frame in (("relations", relations), ("tracks", tracks), ("drive_inputs", drives),
-                        ("actor_keys", ACTOR_KEYS)):
+    for name, frame in (("relations", relations), ("tracks", tracks), ("drive_inputs", drives)):
         con.register(f"_{name}", frame)
         con.execute(f"create temp table {name} as select * from _{name}")
     values = {"sut_minimal_speed_mps": 5 / 3.6, "min_distance_from_cyclist_m": 0.0, "max_distance_from_cyclist_m": 5.0,

@@ -15,6 +15,7 @@ from logiq_sql import ingest, match
 from logiq_sql.core import sql
 from logiq_sql.core.sql import bind, tables_read
 from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
+from logiq_sql.storage.step_cache import drive_column
 
 ROOT = Path(__file__).resolve().parents[2]
 NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
@@ -179,7 +180,7 @@ def test_a_reingested_drive_drops_its_entries_and_reruns_every_step(matched, tmp
                            {"d": drive}).fetchall()[0][0] != version
         for (table,) in con.execute("select table_name from duckdb_tables() where table_name like 'step_cache_%'"
                                     ).fetchall():
-            assert con.execute(f"select count(*) from {table} where drive_id = $d", {"d": drive}
+            assert con.execute(f"select count(*) from {table} where {drive_column(con, table)} = $d", {"d": drive}
                                ).fetchall()[0][0] == 0, table
     before = tmp_path / "before.duckdb"
     shutil.copyfile(matched, before)
@@ -191,6 +192,34 @@ def test_a_reingested_drive_drops_its_entries_and_reruns_every_step(matched, tmp
     assert {o for _b, o, *_ in result.cache_steps} == {("follower_vehicle",), ("sut_cut_out",)}
     assert {b for b, *_ in result.cache_steps} == {(drive,), (other,)}
     assert_same_outputs(matched, forced_copy(matched, before, scenarios=SCENARIOS, overrides=override))
+
+
+KEYED_STEPS = ("phase_frames match/phase_frames.sql#phases=1", "phase_runs match/phase_runs.sql",
+               "chain match/chain.sql")  # rows that carry the drive by drive_key alone
+
+
+def test_steps_keyed_by_drive_key_are_kept_per_drive_and_reused(matched, tmp_path):
+    drives = ("USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b")
+    with duckdb.connect(str(matched), read_only=True) as con:
+        kept = con.execute("select step, drive_id, table_name from step_cache where scenario = 'follower_vehicle'"
+                           ).fetchall()
+        for step in KEYED_STEPS:
+            tables = {t for s, d, t in kept if s == step}
+            assert {d for s, d, _ in kept if s == step} == set(drives), step
+            for table in tables:  # each row beside the drive it belongs to
+                assert drive_column(con, table) == "cached_drive_id", step
+                assert con.execute(f"select count(*) from {table} as c join drive_inputs as d on "
+                                   "c.drive_key = d.drive_key and c.cached_drive_id <> d.drive_id").fetchall()[0][0] == 0
+    before = tmp_path / "before.duckdb"
+    shutil.copyfile(matched, before)
+    override = {"min_scenario_duration": "3sec"}  # read after the chains: they are reused, the match is not
+    result = match(matched, scenarios=["follower_vehicle"], overrides=override, batch_rows=1)
+    got = statuses(result, "follower_vehicle")
+    for drive in drives:
+        assert all(got[((drive,), step)] == "reused" for step in KEYED_STEPS), got
+        assert got[((drive,), "scenario_match match/sequential.sql")] == "computed"
+    assert not any(step.startswith("scenario_phases ") for *_, step, _s in result.cache_steps)  # reads no table
+    assert_same_outputs(matched, forced_copy(matched, before, scenarios=["follower_vehicle"], overrides=override))
 
 
 def test_batches_of_several_drives_read_the_entries_of_single_drive_batches(matched, tmp_path):
