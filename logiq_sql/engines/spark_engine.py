@@ -165,12 +165,17 @@ class SparkEngine(Engine):
 
     def keep_frame(self, table: str, df) -> None:
         """Keep the Spark DataFrame ``df`` as the step ``table``: computed once, a temp view of that name."""
+        self.describe(f"step {table}")
         old = self.views.pop(table, None)
         df = df.localCheckpoint(eager=True)  # later steps read it many times; plans stay short
         df.createOrReplaceTempView(table)
         self.views[table] = df
         if old is not None:
             old.unpersist()
+
+    def describe(self, what: str | None) -> None:
+        """Name the jobs that follow after ``what`` (the Spark UI's and event log's job description)."""
+        self.spark.sparkContext.setJobDescription(what)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         args = bind(relative, values)
@@ -234,6 +239,7 @@ class SparkEngine(Engine):
                 self.spark.catalog.dropTempView(table)
 
     def close(self) -> None:
+        self.describe(None)
         for df in self.views.values():
             df.unpersist()
         for name in (*self.views, *(t.name for t in INPUT_TABLES)):

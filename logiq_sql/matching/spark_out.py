@@ -89,6 +89,7 @@ class SparkResults:
     def _replace(self, table: str, df, drives: list[str], scenario: str | None = None) -> None:
         """``_clear``, then append ``df`` partitioned as PARTITIONS says."""
         self._clear(table, drives, scenario)
+        self.engine.describe(f"write {table}")
         df.write.mode("append").partitionBy(*PARTITIONS[table]).parquet(f"{self.out}/{table}")
 
     # -- one batch
