@@ -122,6 +122,12 @@ def session(url: str, shipped: Path, executors: int, executor_memory: str = "512
     if active is not None:  # a local session of this process
         active.stop()
     builder = SparkSession.builder
+    try:  # the JVM options the code under test asks for (benchmarks/spark_cluster.py runs older revisions too)
+        from logiq_sql.engines.spark_engine import session_options
+    except ImportError:
+        pass
+    else:
+        builder = builder.config(map=session_options())
     if event_log is not None:
         event_log.mkdir(parents=True, exist_ok=True)
         builder = (builder.config("spark.eventLog.enabled", "true").config("spark.eventLog.dir", event_log.as_uri())

@@ -88,6 +88,19 @@ def spark_statements(relative: str) -> tuple[tuple[str | None, str], ...]:
     return (*shared, (None, statement(tree)))
 
 
+# The JVMs of a match run many short jobs, each with code generated for it: the optimising JIT (C2) spends much of
+# their CPU compiling code that runs for seconds, so the client JIT alone costs less (benchmarks/README.md, Spark).
+# A session logiq-sql starts has these; a user's own session (a notebook's, spark-submit's) takes them from
+# session_options() or --conf (docs/engines.md).
+JVM_OPTIONS = "-XX:TieredStopAtLevel=1"
+
+
+def session_options() -> dict[str, str]:
+    """The settings of a session for logiq-sql that must be given before it starts (the JVMs' options):
+    ``SparkSession.builder.config(map=session_options())``."""
+    return {"spark.driver.extraJavaOptions": JVM_OPTIONS, "spark.executor.extraJavaOptions": JVM_OPTIONS}
+
+
 def spark_session(master: str | None = None):
     """The active Spark session, or a new one on ``master`` (else $SPARK_MASTER, else spark-submit's --master, else
     local[2])."""
@@ -109,7 +122,7 @@ def spark_session(master: str | None = None):
     master = master or os.environ.get(SPARK_MASTER_ENV)
     if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
         builder = builder.master(master or DEFAULT_SPARK_MASTER)
-    session = (builder.appName("logiq-sql")
+    session = (builder.appName("logiq-sql").config(map=session_options())
                .config("spark.ui.enabled", "false")
                .config("spark.ui.showConsoleProgress", "false")
                .config("spark.sql.shuffle.partitions", "4")
