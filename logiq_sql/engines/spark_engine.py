@@ -21,7 +21,15 @@ from logiq_sql.core import schema
 from logiq_sql.core.errors import arg
 from logiq_sql.core.schema import arrow_type, spark_type
 from logiq_sql.core.sql import bind, parsed, query_text, sql_literal, used_values
-from logiq_sql.engines.base import INPUT_TABLES, PARTITIONED_BY_DRIVE, Engine, EngineError, as_query, copy_into_duckdb
+from logiq_sql.engines.base import (
+    INPUT_TABLES,
+    PARTITIONED_BY_DRIVE,
+    Engine,
+    EngineError,
+    Reads,
+    as_query,
+    copy_into_duckdb,
+)
 from logiq_sql.storage import dataset
 
 SPARK_MASTER_ENV = "SPARK_MASTER"
@@ -199,6 +207,21 @@ class SparkEngine(Engine):
         self.keep_frame(table, rows.where("holds") if holding else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
 
+    def define(self, table: str, relative: str, values: dict[str, object]) -> None:
+        """queries/<relative> as the view ``table``, computed as part of the job of the one step that reads it
+        (a KPI query, read by its scenario's metrics): no job of its own. A query that needs CTE views of its own
+        (spark_statements) is materialised instead."""
+        *shared, (_, query) = spark_statements(relative)
+        if shared:
+            self.materialise(table, relative, values)
+            return
+        old = self.views.pop(table, None)
+        df = self.spark.sql(query, args=bind(relative, values))
+        df.createOrReplaceTempView(table)
+        self.views[table] = df
+        if old is not None:
+            old.unpersist()
+
     def frame(self, sql: str) -> pl.DataFrame:
         text = sqlglot.transpile(as_query(sql), read="duckdb", write="spark")[0]
         return pl.from_arrow(self.spark.sql(text).toArrow())
@@ -216,18 +239,19 @@ class SparkEngine(Engine):
         for table in PARTITIONED_BY_DRIVE:
             self.inputs[table].createOrReplaceTempView(table)
 
-    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
-        # on the executors, one drive at a time: the rows of every table in ``reads`` go, as one union with
-        # prefixed columns, to a grouped Arrow UDF that loads them into an in-memory DuckDB and calls ``compute``;
-        # only drives with rows in reads[0] are grouped. Nothing is collected to the driver.
+    def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
+        # on the executors, one drive at a time: the rows of every table in ``reads``, only the columns it names,
+        # go as one union with prefixed columns to a grouped Arrow UDF that loads them into an in-memory DuckDB and
+        # calls ``compute``; only drives with rows in the first table are grouped. Nothing is collected to the
+        # driver.
         from pyspark.sql import functions as F
         from pyspark.sql import types as T
 
-        drives = self.spark.table(reads[0]).select("drive_id").distinct()
+        drives = self.spark.table(next(iter(reads))).select("drive_id").distinct()
         parts, columns = [], {}
-        for name in reads:
+        for name, wanted in reads.items():
             df = self.spark.table(name).join(drives, "drive_id", "left_semi")
-            columns[name] = [(f"{name}__{c}", c) for c in df.columns]
+            columns[name] = [(f"{name}__{c}", c) for c in (wanted or df.columns)]
             parts.append(df.select(F.col("drive_id").alias("_drive"), F.lit(name).alias("_table"),
                                    *[F.col(c).alias(alias) for alias, c in columns[name]]))
         packed = functools.reduce(lambda a, b: a.unionByName(b, allowMissingColumns=True), parts)
