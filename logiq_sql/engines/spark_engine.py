@@ -154,12 +154,6 @@ def export_parquet(con: duckdb.DuckDBPyConnection, folder: str | Path) -> Path:
     return dataset.write(con, folder, "part")
 
 
-# SQL settings for the engine's run, set on the session while it runs and put back after: adaptive execution
-# replans every query after each shuffle stage, one job per stage, and a match is hundreds of small queries
-# (benchmarks/README.md, Spark on the standalone cluster)
-RUN_CONF = {"spark.sql.adaptive.enabled": "false"}
-
-
 class SparkEngine(Engine):
     """Steps run with ``spark.sql(text, args=...)`` over the canonical tables as Parquet; each step's result is
     checkpointed (computed once, lineage cut) and kept as a temp view of the step's name."""
@@ -169,9 +163,6 @@ class SparkEngine(Engine):
     def __init__(self, con: duckdb.DuckDBPyConnection, master: str | None = None, tables: str | None = None):
         self.con = con
         self.spark = spark_session(master)
-        self._conf_before = {key: self.spark.conf.get(key, None) for key in RUN_CONF}
-        for key, value in RUN_CONF.items():
-            self.spark.conf.set(key, value)
         self.views: dict[str, object] = {}
         self.inputs: dict[str, object] = {}
         self.own_folder = tables is None
@@ -286,11 +277,6 @@ class SparkEngine(Engine):
 
     def close(self) -> None:
         self.describe(None)
-        for key, value in self._conf_before.items():  # the session as it was given
-            if value is None:
-                self.spark.conf.unset(key)
-            else:
-                self.spark.conf.set(key, value)
         for df in self.views.values():
             df.unpersist()
         for name in (*self.views, *(t.name for t in INPUT_TABLES)):
