@@ -17,6 +17,7 @@ Polars verdicts and how to run on a Spark cluster: docs/engines.md.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 
 import duckdb
 import polars as pl
@@ -31,6 +32,10 @@ PARTITIONED_BY_DRIVE = ("tracks", "track_lanes", "traffic_light_states")
 # what a step may read besides other steps: the canonical tables (a drive's rows and its map's, versioned by
 # ingest_versions) and the batch's drive ids
 DRIVE_INPUT_NAMES = frozenset({*(t.name for t in INPUT_TABLES), "run_drives"})
+
+
+# the tables a Python step (Engine.derive) reads, each with the columns it reads of it (None: every column)
+Reads = Mapping[str, tuple[str, ...] | None]
 
 
 class EngineError(LogiqError):
@@ -65,10 +70,11 @@ class Engine:
     def release_drives(self) -> None:
         """Undo ``select_drives``."""
 
-    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
-        """Make ``table`` from ``compute(con)``, a Python step (shapely) that queries the tables ``reads`` (all
-        keyed by drive_id) through a DuckDB connection and returns a Polars frame of ``schema``. Here it runs once
-        over the whole batch; Spark runs it per drive on the executors."""
+    def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
+        """Make ``table`` from ``compute(con)``, a Python step (shapely) that queries the tables of ``reads`` (all
+        keyed by drive_id; each with the columns it reads, None for every one) through a DuckDB connection and
+        returns a Polars frame of ``schema``. Here it runs once over the whole batch; Spark runs it per drive on
+        the executors, for the drives with rows in the first table, with only those columns."""
         self.register(table, compute(self))
 
     def persist(self, tables: tuple[str, ...]) -> None:

@@ -8,7 +8,7 @@ import duckdb
 import polars as pl
 
 from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, tables_read
-from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, as_query, copy_into_duckdb
+from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, Reads, as_query, copy_into_duckdb
 from logiq_sql.storage.db import stored_schema
 
 
@@ -75,7 +75,7 @@ class DuckEngine(Engine):
             return
         self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
 
-    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
+    def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
         self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
 

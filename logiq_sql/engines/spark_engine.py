@@ -21,7 +21,15 @@ from logiq_sql.core import schema
 from logiq_sql.core.errors import arg
 from logiq_sql.core.schema import arrow_type, spark_type
 from logiq_sql.core.sql import bind, parsed, query_text, sql_literal, used_values
-from logiq_sql.engines.base import INPUT_TABLES, PARTITIONED_BY_DRIVE, Engine, EngineError, as_query, copy_into_duckdb
+from logiq_sql.engines.base import (
+    INPUT_TABLES,
+    PARTITIONED_BY_DRIVE,
+    Engine,
+    EngineError,
+    Reads,
+    as_query,
+    copy_into_duckdb,
+)
 from logiq_sql.storage import dataset
 
 SPARK_MASTER_ENV = "SPARK_MASTER"
@@ -88,6 +96,19 @@ def spark_statements(relative: str) -> tuple[tuple[str | None, str], ...]:
     return (*shared, (None, statement(tree)))
 
 
+# The JVMs of a match run many short jobs, each with code generated for it: the optimising JIT (C2) spends much of
+# their CPU compiling code that runs for seconds, so the client JIT alone costs less (benchmarks/README.md, Spark).
+# A session logiq-sql starts has these; a user's own session (a notebook's, spark-submit's) takes them from
+# session_options() or --conf (docs/engines.md).
+JVM_OPTIONS = "-XX:TieredStopAtLevel=1"
+
+
+def session_options() -> dict[str, str]:
+    """The settings of a session for logiq-sql that must be given before it starts (the JVMs' options):
+    ``SparkSession.builder.config(map=session_options())``."""
+    return {"spark.driver.extraJavaOptions": JVM_OPTIONS, "spark.executor.extraJavaOptions": JVM_OPTIONS}
+
+
 def spark_session(master: str | None = None):
     """The active Spark session, or a new one on ``master`` (else $SPARK_MASTER, else spark-submit's --master, else
     local[2])."""
@@ -109,7 +130,7 @@ def spark_session(master: str | None = None):
     master = master or os.environ.get(SPARK_MASTER_ENV)
     if master or "PYSPARK_GATEWAY_PORT" not in os.environ:  # under spark-submit, its --master applies
         builder = builder.master(master or DEFAULT_SPARK_MASTER)
-    session = (builder.appName("logiq-sql")
+    session = (builder.appName("logiq-sql").config(map=session_options())
                .config("spark.ui.enabled", "false")
                .config("spark.ui.showConsoleProgress", "false")
                .config("spark.sql.shuffle.partitions", "4")
@@ -165,12 +186,17 @@ class SparkEngine(Engine):
 
     def keep_frame(self, table: str, df) -> None:
         """Keep the Spark DataFrame ``df`` as the step ``table``: computed once, a temp view of that name."""
+        self.describe(f"step {table}")
         old = self.views.pop(table, None)
         df = df.localCheckpoint(eager=True)  # later steps read it many times; plans stay short
         df.createOrReplaceTempView(table)
         self.views[table] = df
         if old is not None:
             old.unpersist()
+
+    def describe(self, what: str | None) -> None:
+        """Name the jobs that follow after ``what`` (the Spark UI's and event log's job description)."""
+        self.spark.sparkContext.setJobDescription(what)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         args = bind(relative, values)
@@ -180,6 +206,21 @@ class SparkEngine(Engine):
         rows = self.spark.sql(query, args=args)
         self.keep_frame(table, rows.where("holds") if holding else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
+
+    def define(self, table: str, relative: str, values: dict[str, object]) -> None:
+        """queries/<relative> as the view ``table``, computed as part of the job of the one step that reads it
+        (a KPI query, read by its scenario's metrics): no job of its own. A query that needs CTE views of its own
+        (spark_statements) is materialised instead."""
+        *shared, (_, query) = spark_statements(relative)
+        if shared:
+            self.materialise(table, relative, values)
+            return
+        old = self.views.pop(table, None)
+        df = self.spark.sql(query, args=bind(relative, values))
+        df.createOrReplaceTempView(table)
+        self.views[table] = df
+        if old is not None:
+            old.unpersist()
 
     def frame(self, sql: str) -> pl.DataFrame:
         text = sqlglot.transpile(as_query(sql), read="duckdb", write="spark")[0]
@@ -198,18 +239,19 @@ class SparkEngine(Engine):
         for table in PARTITIONED_BY_DRIVE:
             self.inputs[table].createOrReplaceTempView(table)
 
-    def derive(self, table: str, compute, reads: tuple[str, ...], schema: dict[str, pl.DataType]) -> None:
-        # on the executors, one drive at a time: the rows of every table in ``reads`` go, as one union with
-        # prefixed columns, to a grouped Arrow UDF that loads them into an in-memory DuckDB and calls ``compute``;
-        # only drives with rows in reads[0] are grouped. Nothing is collected to the driver.
+    def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
+        # on the executors, one drive at a time: the rows of every table in ``reads``, only the columns it names,
+        # go as one union with prefixed columns to a grouped Arrow UDF that loads them into an in-memory DuckDB and
+        # calls ``compute``; only drives with rows in the first table are grouped. Nothing is collected to the
+        # driver.
         from pyspark.sql import functions as F
         from pyspark.sql import types as T
 
-        drives = self.spark.table(reads[0]).select("drive_id").distinct()
+        drives = self.spark.table(next(iter(reads))).select("drive_id").distinct()
         parts, columns = [], {}
-        for name in reads:
+        for name, wanted in reads.items():
             df = self.spark.table(name).join(drives, "drive_id", "left_semi")
-            columns[name] = [(f"{name}__{c}", c) for c in df.columns]
+            columns[name] = [(f"{name}__{c}", c) for c in (wanted or df.columns)]
             parts.append(df.select(F.col("drive_id").alias("_drive"), F.lit(name).alias("_table"),
                                    *[F.col(c).alias(alias) for alias, c in columns[name]]))
         packed = functools.reduce(lambda a, b: a.unionByName(b, allowMissingColumns=True), parts)
@@ -234,6 +276,7 @@ class SparkEngine(Engine):
                 self.spark.catalog.dropTempView(table)
 
     def close(self) -> None:
+        self.describe(None)
         for df in self.views.values():
             df.unpersist()
         for name in (*self.views, *(t.name for t in INPUT_TABLES)):

@@ -38,8 +38,14 @@ ENCROACHMENTS_SCHEMA = {
     "ego_occupancy_from_s_m": pl.Float64, "ego_occupancy_to_s_m": pl.Float64,
     "actor_occupancy_from_s_m": pl.Float64, "actor_occupancy_to_s_m": pl.Float64,
 }
-# the tables encroachments() reads, every one keyed by drive_id; a drive without crossing pairs has no rows
-ENCROACHMENT_READS = ("crossing_pairs", "passages", "actor_paths", "tracks")
+# the tables encroachments() reads and the columns it reads of each (None: every one), every table keyed by
+# drive_id; a drive without crossing pairs has no rows. Spark ships only these columns to its Python workers
+ENCROACHMENT_READS = {
+    "crossing_pairs": None,
+    "passages": ("drive_id", "actor_id", "passage", "entry_frame", "exit_frame"),
+    "actor_paths": ("drive_id", "actor_id", "frame", "s_m"),
+    "tracks": ("drive_id", "actor_id", "frame", "x_m", "y_m", "heading_rad", "length_m", "width_m"),
+}
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 PATH_STEP_M = 0.5  # a path's vertices: the mean position of its rows over each 0.5 m of s_m
 SMOOTH_M = 1.0  # then the mean of the vertices within 1 m of s_m either side

@@ -95,6 +95,7 @@ class SparkResults:
     def _replace(self, table: str, df, drives: list[str], scenario: str | None = None) -> None:
         """``_clear``, then append ``df`` partitioned as PARTITIONS says."""
         self._clear(table, drives, scenario)
+        self.engine.describe(f"write {table}")
         df.write.mode("append").partitionBy(*PARTITIONS[table]).parquet(f"{self.out}/{table}")
 
     # -- one batch
@@ -124,7 +125,7 @@ class SparkResults:
             metrics = matches.select("match_id")
             engine.materialise(*MATCH_ROWS_STEP, values)
             for i, rel in enumerate(s.kpi_queries):
-                engine.materialise(f"_kpi_{i}", rel, values)
+                engine.define(f"_kpi_{i}", rel, values)  # computed with the metrics, below
                 metrics = metrics.join(spark.table(f"_kpi_{i}"), "match_id", "left")
             if s.sample_queries:
                 # each coverage item keeps the value at the event its `sample` names (match/samples.sql): one row
