@@ -21,7 +21,7 @@ from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import locate_maps
+from logiq_sql.ingestion.localise import track_lanes_of
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -428,11 +428,12 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
             del raw
             with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
                 con.execute("insert into tracks select * from _staged")
-            staged = pl.from_arrow(staged)
         with stage("localisation"):
-            located = locate_maps(_map_rows(staged, accepted, maps))
+            located = track_lanes_of(staged, _map_rows(accepted, maps))
         del staged
-        tables.insert(con, "track_lanes", located)
+        with registered(con, "_located", located):
+            con.execute(f"insert into track_lanes ({', '.join(located.column_names)}) "
+                        f"select {', '.join(located.column_names)} from _located")
         del located
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
@@ -448,16 +449,16 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     return written
 
 
-def _map_rows(staged: pl.DataFrame, accepted: list, maps: dict[str, DriveData]) -> list:
-    """For each map, the rows of the batch's drives on it (slices of ``staged``, where each accepted drive's rows
-    follow the previous drive's) and its lanes."""
-    on_map: dict[str, list[pl.DataFrame]] = {m: [] for m in maps}
+def _map_rows(accepted: list, maps: dict[str, DriveData]) -> list:
+    """For each map, the indices of the batch's rows on it (each accepted drive's rows follow the previous
+    drive's) and its lanes."""
+    on_map: dict[str, list[np.ndarray]] = {m: [] for m in maps}
     offset = 0
     for drive, tracks, *_ in accepted:
         if drive.map_id is not None:
-            on_map[drive.map_id].append(staged.slice(offset, tracks.height))
+            on_map[drive.map_id].append(np.arange(offset, offset + tracks.height))
         offset += tracks.height
-    return [(pl.concat(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
+    return [(np.concatenate(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
 
 
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
