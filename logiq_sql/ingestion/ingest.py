@@ -15,6 +15,7 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
+import pyarrow as pa
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
@@ -422,12 +423,10 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and
         # localised as it is (no read back from the file)
         with stage("kinematics"):
-            raw = with_keys(pl.concat([t for _, t, *_ in accepted]), keys)
-            with registered(con, "tracks_raw", raw):
-                staged = con.sql(query_text("staging/tracks.sql")).to_arrow_table()
-            del raw
+            staged = _staged(con, with_keys(pl.concat([t for _, t, *_ in accepted]), keys).to_arrow())
             with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
-                con.execute("insert into tracks select * from _staged")
+                con.execute(f"insert into tracks ({', '.join(staged.column_names)}) "
+                            f"select {', '.join(staged.column_names)} from _staged")
         with stage("localisation"):
             located = track_lanes_of(staged, _map_rows(accepted, maps))
         del staged
@@ -447,6 +446,21 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         con.execute("rollback")
         raise
     return written
+
+
+KINEMATICS = ("heading_rad", "speed_mps", "accel_mps2")  # what staging/tracks.sql completes
+
+
+def _staged(con: duckdb.DuckDBPyConnection, raw: pa.Table) -> pa.Table:
+    """The stored tracks of a batch's rows with their keys (``with_keys``): their own columns, with the kinematics
+    staging/tracks.sql completes over their order. The query returns a row for each row of ``raw`` in its order
+    (its windows run over that order); its row_key column checks that."""
+    with registered(con, "tracks_raw", raw):
+        done = con.sql(query_text("staging/tracks.sql")).to_arrow_table().combine_chunks()
+    if not done["row_key"].equals(raw["row_key"]):
+        raise RuntimeError("staging/tracks.sql returned the rows out of their order: not stored.")
+    return pa.table([done[c] if c in KINEMATICS else raw[c] for c in schema.STORED_TRACKS.column_names],
+                    names=list(schema.STORED_TRACKS.column_names))
 
 
 def _map_rows(accepted: list, maps: dict[str, DriveData]) -> list:
