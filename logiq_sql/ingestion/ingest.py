@@ -423,7 +423,8 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and
         # localised as it is (no read back from the file)
         with stage("kinematics"):
-            staged = _staged(con, with_keys(pl.concat([t for _, t, *_ in accepted]), keys).to_arrow())
+            staged = _staged(con, with_keys([t for _, t, *_ in accepted], [keys[d.drive_id] for d, *_ in accepted]
+                                             ).to_arrow())
             with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
                 con.execute(f"insert into tracks ({', '.join(staged.column_names)}) "
                             f"select {', '.join(staged.column_names)} from _staged")
@@ -490,13 +491,23 @@ def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str
     return keys
 
 
-def with_keys(tracks: pl.DataFrame, keys: dict[str, int]) -> pl.DataFrame:
-    """Track rows in (drive, actor_id, frame) order with their integer keys (schema.TRACK_KEYS) and the
-    ``track_no`` staging/tracks.sql's windows use (different for neighbouring tracks)."""
-    return tracks.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()).with_columns(
-        drive_key=pl.col("drive_id").replace_strict(keys, return_dtype=pl.Int64),
-        actor_key=(pl.col("track_no") - pl.col("track_no").first().over("drive_id") + 1).cast(pl.Int64),
-        row_key=(pl.int_range(pl.len()).over("drive_id") + 1).cast(pl.Int64),
+def with_keys(tracks: list[pl.DataFrame], keys: list[int]) -> pl.DataFrame:
+    """The rows of drives (each drive's in (actor_id, frame) order, none empty), one drive after the other, with
+    their integer keys (schema.TRACK_KEYS; ``keys``: each drive's drive_key) and the ``track_no``
+    staging/tracks.sql's windows use (different for neighbouring tracks). Each drive's rows are a known range, so
+    the keys are offsets within it (no grouping by the string ids)."""
+    heights = np.array([t.height for t in tracks], dtype=np.int64)
+    starts = np.cumsum(heights) - heights
+    rows = pl.concat(tracks)
+    new_track = (pl.col("actor_id") != pl.col("actor_id").shift()).fill_null(True)
+    first = np.zeros(rows.height, dtype=bool)
+    first[starts] = True  # a drive's first row starts a track, whatever its actor_id
+    track_no = np.cumsum(rows.select(new_track).to_series().to_numpy() | first) - 1
+    return rows.with_columns(
+        track_no=pl.Series(track_no, dtype=pl.UInt32),
+        drive_key=pl.Series(np.repeat(np.asarray(keys, dtype=np.int64), heights)),
+        actor_key=pl.Series(track_no - np.repeat(track_no[starts], heights) + 1),
+        row_key=pl.Series(np.arange(rows.height, dtype=np.int64) - np.repeat(starts, heights) + 1),
     )
 
 
