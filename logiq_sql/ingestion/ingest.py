@@ -22,7 +22,7 @@ from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import track_lanes_of
+from logiq_sql.ingestion.localise import build_indexes, track_lanes_of
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -80,6 +80,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
     batch: list[DriveData] = []
     batch_rows = 0
     seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
+    held: dict[str, tuple] = {}  # map_id -> (its lanes, their LaneIndex), for the run's later batches
     with db.open_for_write(db_path, wait_s, progress) as con:
         # the reader holds up to CHUNK_ROWS rows in Polars and the batch is localised in Python beside DuckDB:
         # DuckDB gets half the limit (its cache of a large file would fill all of it, and the rest needs room;
@@ -93,7 +94,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
                     batch_rows += drive.tracks.height
                     count += 1
                     if batch_rows >= BATCH_ROWS:
-                        _count(summary, write_drives(con, batch))
+                        _count(summary, write_drives(con, batch, held))
                         batch, batch_rows = [], 0
             except LogiqError as exc:
                 # the file could not be read: one rejected drive named after it
@@ -105,7 +106,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
                 continue
             if progress:
                 progress(f"[{i}/{len(files)}] {path.name}: {count} drive(s)")
-        _count(summary, write_drives(con, batch))
+        _count(summary, write_drives(con, batch, held))
     return summary
 
 
@@ -369,13 +370,16 @@ def _row_checks() -> tuple[pl.Expr, pl.Expr, pl.Expr]:
     return keys_ok, finite, in_range
 
 
-def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> list[tuple[DriveData, int]]:
-    """Replace these drives (and their maps) in the file, in one transaction.
+def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
+                 held: dict[str, tuple] | None = None) -> list[tuple[DriveData, int]]:
+    """Replace these drives (and their maps) in the file, in one transaction. ``held``: the lane indexes of the
+    maps of earlier batches of the run (``_map_rows``), kept for the next.
 
     Returns each drive with the number of track rows kept (0 when the drive was rejected).
     """
     accepted: list[tuple[DriveData, pl.DataFrame, int, str | None]] = []
     written: list[tuple[DriveData, int]] = []
+    held = {} if held is None else held
     # a drive read twice into one batch (a file named twice) is written once, as a later ingest would replace it
     unique = list({d.drive_id: d for d in drives}.values())
     cleaned = clean_batch(unique)  # the checks of the whole batch at once
@@ -429,7 +433,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
                 con.execute(f"insert into tracks ({', '.join(staged.column_names)}) "
                             f"select {', '.join(staged.column_names)} from _staged")
         with stage("localisation"):
-            located = track_lanes_of(staged, _map_rows(accepted, maps))
+            located = track_lanes_of(staged, _map_rows(accepted, maps, held))
         del staged
         with registered(con, "_located", located):
             con.execute(f"insert into track_lanes ({', '.join(located.column_names)}) "
@@ -464,16 +468,22 @@ def _staged(con: duckdb.DuckDBPyConnection, raw: pa.Table) -> pa.Table:
                     names=list(schema.STORED_TRACKS.column_names))
 
 
-def _map_rows(accepted: list, maps: dict[str, DriveData]) -> list:
+def _map_rows(accepted: list, maps: dict[str, DriveData], held: dict[str, tuple]) -> list:
     """For each map, the indices of the batch's rows on it (each accepted drive's rows follow the previous
-    drive's) and its lanes."""
+    drive's), its lanes and their index: built once per run for a lanes frame a reader gives again (the Parquet
+    reader gives every drive of a map the same frame), kept in ``held`` (map_id -> (lanes, index))."""
     on_map: dict[str, list[np.ndarray]] = {m: [] for m in maps}
     offset = 0
     for drive, tracks, *_ in accepted:
         if drive.map_id is not None:
             on_map[drive.map_id].append(np.arange(offset, offset + tracks.height))
         offset += tracks.height
-    return [(np.concatenate(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
+    new = [m for m, drive in maps.items() if not drive.lanes.is_empty()
+           and (m not in held or held[m][0] is not drive.lanes)]
+    for m, index in zip(new, build_indexes([maps[m].lanes for m in new]), strict=True):
+        held[m] = (maps[m].lanes, index)
+    return [(np.concatenate(on_map[m]), drive.lanes, held[m][1] if m in held else None)
+            for m, drive in maps.items()]
 
 
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:

@@ -333,6 +333,12 @@ def locate_maps(parts: list[tuple[pl.DataFrame, pl.DataFrame, LaneIndex | None]]
                                   | schema.TRACK_LANES.polars_schema)
 
 
+def build_indexes(lanes: list[pl.DataFrame]) -> list[LaneIndex]:
+    """The index of each map's lanes, built on a thread pool."""
+    with ThreadPoolExecutor(WORKERS) as pool:
+        return list(pool.map(LaneIndex, lanes))
+
+
 def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, LaneIndex | None]]) -> pa.Table:
     """Rows of ``track_lanes`` (Arrow) for ``rows`` (track rows: drive_id, actor_id, kind, frame, x_m, y_m,
     heading_rad, and the integer keys schema.TRACK_KEYS when it has them). ``maps`` gives for each map the
@@ -361,8 +367,9 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
         row, lane, dist, diff = index.locate(x[idx], y[idx], heading[idx])
         return idx[row], lane + first_lane, dist, diff
 
+    built = iter(build_indexes([lanes for _, lanes, index in work if index is None]))
+    indexes = [index if index is not None else next(built) for *_, index in work]
     with ThreadPoolExecutor(WORKERS) as pool:
-        indexes = list(pool.map(lambda w: w[2] or LaneIndex(w[1]), work))
         total = sum(len(idx) for idx, *_ in work)
         size = min(CHUNK_POINTS, max(MIN_CHUNK_POINTS, -(-total // WORKERS)))  # every worker busy
         first_lane = np.cumsum([0] + [len(index.lane_ids) for index in indexes])
