@@ -15,13 +15,14 @@ from pathlib import Path
 import duckdb
 import numpy as np
 import polars as pl
+import pyarrow as pa
 
 from logiq_sql.core import schema
 from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import locate_maps
+from logiq_sql.ingestion.localise import build_indexes, track_lanes_of
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -79,6 +80,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
     batch: list[DriveData] = []
     batch_rows = 0
     seen: dict[str, str] = {}  # drive_id -> the file it came from in this run
+    held: dict[str, tuple] = {}  # map_id -> (its lanes, their LaneIndex), for the run's later batches
     with db.open_for_write(db_path, wait_s, progress) as con:
         # the reader holds up to CHUNK_ROWS rows in Polars and the batch is localised in Python beside DuckDB:
         # DuckDB gets half the limit (its cache of a large file would fill all of it, and the rest needs room;
@@ -92,7 +94,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
                     batch_rows += drive.tracks.height
                     count += 1
                     if batch_rows >= BATCH_ROWS:
-                        _count(summary, write_drives(con, batch))
+                        _count(summary, write_drives(con, batch, held))
                         batch, batch_rows = [], 0
             except LogiqError as exc:
                 # the file could not be read: one rejected drive named after it
@@ -104,7 +106,7 @@ def ingest(fmt: str, paths: Iterable[str | Path], db_path: str | Path, *,
                 continue
             if progress:
                 progress(f"[{i}/{len(files)}] {path.name}: {count} drive(s)")
-        _count(summary, write_drives(con, batch))
+        _count(summary, write_drives(con, batch, held))
     return summary
 
 
@@ -368,13 +370,16 @@ def _row_checks() -> tuple[pl.Expr, pl.Expr, pl.Expr]:
     return keys_ok, finite, in_range
 
 
-def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> list[tuple[DriveData, int]]:
-    """Replace these drives (and their maps) in the file, in one transaction.
+def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
+                 held: dict[str, tuple] | None = None) -> list[tuple[DriveData, int]]:
+    """Replace these drives (and their maps) in the file, in one transaction. ``held``: the lane indexes of the
+    maps of earlier batches of the run (``_map_rows``), kept for the next.
 
     Returns each drive with the number of track rows kept (0 when the drive was rejected).
     """
     accepted: list[tuple[DriveData, pl.DataFrame, int, str | None]] = []
     written: list[tuple[DriveData, int]] = []
+    held = {} if held is None else held
     # a drive read twice into one batch (a file named twice) is written once, as a later ingest would replace it
     unique = list({d.drive_id: d for d in drives}.values())
     cleaned = clean_batch(unique)  # the checks of the whole batch at once
@@ -422,17 +427,17 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
         # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and
         # localised as it is (no read back from the file)
         with stage("kinematics"):
-            raw = with_keys(pl.concat([t for _, t, *_ in accepted]), keys)
-            with registered(con, "tracks_raw", raw):
-                staged = con.sql(query_text("staging/tracks.sql")).to_arrow_table()
-            del raw
+            staged = _staged(con, with_keys([t for _, t, *_ in accepted], [keys[d.drive_id] for d, *_ in accepted]
+                                             ).to_arrow())
             with registered(con, "_staged", staged):  # Arrow: read by DuckDB as it is
-                con.execute("insert into tracks select * from _staged")
-            staged = pl.from_arrow(staged)
+                con.execute(f"insert into tracks ({', '.join(staged.column_names)}) "
+                            f"select {', '.join(staged.column_names)} from _staged")
         with stage("localisation"):
-            located = locate_maps(_map_rows(staged, accepted, maps))
+            located = track_lanes_of(staged, _map_rows(accepted, maps, held))
         del staged
-        tables.insert(con, "track_lanes", located)
+        with registered(con, "_located", located):
+            con.execute(f"insert into track_lanes ({', '.join(located.column_names)}) "
+                        f"select {', '.join(located.column_names)} from _located")
         del located
         tables.insert(con, "drive_inputs", pl.DataFrame([{
             "drive_id": d.drive_id, "source_format": d.source_format, "source_path": d.source_path,
@@ -448,16 +453,37 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData]) -> lis
     return written
 
 
-def _map_rows(staged: pl.DataFrame, accepted: list, maps: dict[str, DriveData]) -> list:
-    """For each map, the rows of the batch's drives on it (slices of ``staged``, where each accepted drive's rows
-    follow the previous drive's) and its lanes."""
-    on_map: dict[str, list[pl.DataFrame]] = {m: [] for m in maps}
+KINEMATICS = ("heading_rad", "speed_mps", "accel_mps2")  # what staging/tracks.sql completes
+
+
+def _staged(con: duckdb.DuckDBPyConnection, raw: pa.Table) -> pa.Table:
+    """The stored tracks of a batch's rows with their keys (``with_keys``): their own columns, with the kinematics
+    staging/tracks.sql completes over their order. The query returns a row for each row of ``raw`` in its order
+    (its windows run over that order); its row_key column checks that."""
+    with registered(con, "tracks_raw", raw):
+        done = con.sql(query_text("staging/tracks.sql")).to_arrow_table().combine_chunks()
+    if not done["row_key"].equals(raw["row_key"]):
+        raise RuntimeError("staging/tracks.sql returned the rows out of their order: not stored.")
+    return pa.table([done[c] if c in KINEMATICS else raw[c] for c in schema.STORED_TRACKS.column_names],
+                    names=list(schema.STORED_TRACKS.column_names))
+
+
+def _map_rows(accepted: list, maps: dict[str, DriveData], held: dict[str, tuple]) -> list:
+    """For each map, the indices of the batch's rows on it (each accepted drive's rows follow the previous
+    drive's), its lanes and their index: built once per run for a lanes frame a reader gives again (the Parquet
+    reader gives every drive of a map the same frame), kept in ``held`` (map_id -> (lanes, index))."""
+    on_map: dict[str, list[np.ndarray]] = {m: [] for m in maps}
     offset = 0
     for drive, tracks, *_ in accepted:
         if drive.map_id is not None:
-            on_map[drive.map_id].append(staged.slice(offset, tracks.height))
+            on_map[drive.map_id].append(np.arange(offset, offset + tracks.height))
         offset += tracks.height
-    return [(pl.concat(on_map[m]), drive.lanes, None) for m, drive in maps.items()]
+    new = [m for m, drive in maps.items() if not drive.lanes.is_empty()
+           and (m not in held or held[m][0] is not drive.lanes)]
+    for m, index in zip(new, build_indexes([maps[m].lanes for m in new]), strict=True):
+        held[m] = (maps[m].lanes, index)
+    return [(np.concatenate(on_map[m]), drive.lanes, held[m][1] if m in held else None)
+            for m, drive in maps.items()]
 
 
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
@@ -475,13 +501,23 @@ def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str
     return keys
 
 
-def with_keys(tracks: pl.DataFrame, keys: dict[str, int]) -> pl.DataFrame:
-    """Track rows in (drive, actor_id, frame) order with their integer keys (schema.TRACK_KEYS) and the
-    ``track_no`` staging/tracks.sql's windows use (different for neighbouring tracks)."""
-    return tracks.with_columns(track_no=pl.struct("drive_id", "actor_id").rle_id()).with_columns(
-        drive_key=pl.col("drive_id").replace_strict(keys, return_dtype=pl.Int64),
-        actor_key=(pl.col("track_no") - pl.col("track_no").first().over("drive_id") + 1).cast(pl.Int64),
-        row_key=(pl.int_range(pl.len()).over("drive_id") + 1).cast(pl.Int64),
+def with_keys(tracks: list[pl.DataFrame], keys: list[int]) -> pl.DataFrame:
+    """The rows of drives (each drive's in (actor_id, frame) order, none empty), one drive after the other, with
+    their integer keys (schema.TRACK_KEYS; ``keys``: each drive's drive_key) and the ``track_no``
+    staging/tracks.sql's windows use (different for neighbouring tracks). Each drive's rows are a known range, so
+    the keys are offsets within it (no grouping by the string ids)."""
+    heights = np.array([t.height for t in tracks], dtype=np.int64)
+    starts = np.cumsum(heights) - heights
+    rows = pl.concat(tracks)
+    new_track = (pl.col("actor_id") != pl.col("actor_id").shift()).fill_null(True)
+    first = np.zeros(rows.height, dtype=bool)
+    first[starts] = True  # a drive's first row starts a track, whatever its actor_id
+    track_no = np.cumsum(rows.select(new_track).to_series().to_numpy() | first) - 1
+    return rows.with_columns(
+        track_no=pl.Series(track_no, dtype=pl.UInt32),
+        drive_key=pl.Series(np.repeat(np.asarray(keys, dtype=np.int64), heights)),
+        actor_key=pl.Series(track_no - np.repeat(track_no[starts], heights) + 1),
+        row_key=pl.Series(np.arange(rows.height, dtype=np.int64) - np.repeat(starts, heights) + 1),
     )
 
 

@@ -33,6 +33,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 import polars as pl
+import pyarrow as pa
+import pyarrow.compute as pc
 import shapely
 
 from logiq_sql.core import schema
@@ -317,32 +319,70 @@ def locate(tracks: pl.DataFrame, lanes: pl.DataFrame, index: LaneIndex | None = 
 
 def locate_maps(parts: list[tuple[pl.DataFrame, pl.DataFrame, LaneIndex | None]]) -> pl.DataFrame:
     """Rows of ``track_lanes`` for each (tracks of drives on one map, that map's lanes, its index or None to build
-    it), in the order given, every map's chunks on one thread pool. Each pair carries the row's drive_id, actor_id
-    and frame, and its integer keys (schema.TRACK_KEYS) when ``tracks`` has them."""
-    work = []
-    for tracks, lanes, index in parts:
-        moving = tracks.filter(~pl.col("kind").is_in(STATIC_KINDS)) if "kind" in tracks.columns else tracks
-        if not (moving.is_empty() or lanes.is_empty()):
-            work.append((moving, lanes, index))
-    if not work:
-        return schema.empty(schema.TRACK_LANES)
-    carry = [c for c in (*schema.TRACK_LANES.column_names[:3], *(k.name for k in schema.TRACK_KEYS))
-             if c in work[0][0].columns]
-    out_schema = {c: (schema.STORED_TRACK_LANES.polars_schema[c]) for c in carry}
+    it), in the order given (``track_lanes_of`` over the frames one after the other)."""
+    rows = pl.concat([tracks for tracks, *_ in parts], how="vertical_relaxed")
+    ends = np.cumsum([0] + [tracks.height for tracks, *_ in parts])
+    table = track_lanes_of(rows.to_arrow(), [(np.arange(a, z), lanes, index)
+                                              for (_, lanes, index), a, z in zip(parts, ends[:-1], ends[1:], strict=True)])
+    carry = [c for c in table.column_names if c not in ("drive_id", "actor_id", "lane_id")]
+    # the look-up's strings are dictionaries over the rows' and the lanes' own (track_lanes_of): plain strings here
+    return pl.from_arrow(table.set_column(0, "drive_id", table["drive_id"].cast(pa.string()))
+                         .set_column(1, "actor_id", table["actor_id"].cast(pa.string()))
+                         .set_column(3, "lane_id", table["lane_id"].cast(pa.string()))).select(
+        *table.column_names).cast({c: schema.STORED_TRACK_LANES.polars_schema[c] for c in carry}
+                                  | schema.TRACK_LANES.polars_schema)
 
-    def chunk_lanes(task) -> pl.DataFrame:
-        moving, index, start, size = task
-        chunk = moving.slice(start, size)
-        row, lane, dist, diff = index.locate(chunk["x_m"].to_numpy(), chunk["y_m"].to_numpy(),
-                                             chunk["heading_rad"].to_numpy())
-        return chunk.select(pl.col(carry).gather(row)).with_columns(
-            lane_id=index.lane_ids.gather(lane), dist_m=pl.Series(dist), heading_diff_rad=pl.Series(diff),
-        ).select(*schema.TRACK_LANES.column_names, *carry[3:]).cast(out_schema | schema.TRACK_LANES.polars_schema)
 
+def build_indexes(lanes: list[pl.DataFrame]) -> list[LaneIndex]:
+    """The index of each map's lanes, built on a thread pool."""
     with ThreadPoolExecutor(WORKERS) as pool:
-        indexes = list(pool.map(lambda w: w[2] or LaneIndex(w[1]), work))
-        rows = sum(moving.height for moving, *_ in work)
-        size = min(CHUNK_POINTS, max(MIN_CHUNK_POINTS, -(-rows // WORKERS)))  # every worker busy
-        tasks = [(moving, index, start, size) for (moving, *_), index in zip(work, indexes, strict=True)
-                 for start in range(0, moving.height, size)]
-        return pl.concat(pool.map(chunk_lanes, tasks))
+        return list(pool.map(LaneIndex, lanes))
+
+
+def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, LaneIndex | None]]) -> pa.Table:
+    """Rows of ``track_lanes`` (Arrow) for ``rows`` (track rows: drive_id, actor_id, kind, frame, x_m, y_m,
+    heading_rad, and the integer keys schema.TRACK_KEYS when it has them). ``maps`` gives for each map the
+    indices of its rows in ``rows`` (increasing), its lanes, and its index (None: built here); rows of a static
+    kind are skipped. The pairs come map after map in that order, each map's in the order of its rows; each
+    carries its row's drive_id, actor_id, frame and keys.
+
+    Every map's chunks run on one thread pool. drive_id, actor_id and lane_id are Arrow dictionaries over the
+    rows' and the lanes' own strings (no string is copied here; DuckDB stores them as strings)."""
+    kind = rows["kind"]
+    static = pc.is_in(kind, value_set=pa.array(STATIC_KINDS, type=kind.type))
+    moving = pc.and_(pc.is_valid(kind), pc.invert(static)).to_numpy()
+    work = [(found, lanes, index) for found, lanes, index in ((idx[moving[idx]], lanes, index)
+                                                              for idx, lanes, index in maps)
+            if len(found) and not lanes.is_empty()]
+    keys = [k.name for k in schema.TRACK_KEYS if k.name in rows.column_names]
+    names = [*schema.TRACK_LANES.column_names, *keys]
+    if not work:
+        return pa.Table.from_pylist([], schema=pa.schema(
+            [(c, pa.string() if c in ("drive_id", "actor_id", "lane_id") else
+              pa.int64() if c == "frame" or c in keys else pa.float64()) for c in names]))
+    x, y, heading = (rows[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))
+
+    def chunk_lanes(task) -> tuple[np.ndarray, ...]:
+        idx, index, first_lane = task
+        row, lane, dist, diff = index.locate(x[idx], y[idx], heading[idx])
+        return idx[row], lane + first_lane, dist, diff
+
+    built = iter(build_indexes([lanes for _, lanes, index in work if index is None]))
+    indexes = [index if index is not None else next(built) for *_, index in work]
+    with ThreadPoolExecutor(WORKERS) as pool:
+        total = sum(len(idx) for idx, *_ in work)
+        size = min(CHUNK_POINTS, max(MIN_CHUNK_POINTS, -(-total // WORKERS)))  # every worker busy
+        first_lane = np.cumsum([0] + [len(index.lane_ids) for index in indexes])
+        tasks = [(idx[start:start + size], index, first) for (idx, *_), index, first in
+                 zip(work, indexes, first_lane[:-1], strict=True) for start in range(0, len(idx), size)]
+        row, lane, dist, diff = (np.concatenate(a) for a in zip(*pool.map(chunk_lanes, tasks), strict=True))
+    lane_ids = pl.concat([index.lane_ids for index in indexes]).cast(pl.String).to_arrow().cast(pa.string())
+    at = pa.array(row.astype(np.int32, copy=False))  # a batch holds far fewer than 2^31 rows
+    columns = {
+        "drive_id": pa.DictionaryArray.from_arrays(at, rows["drive_id"].combine_chunks()),
+        "actor_id": pa.DictionaryArray.from_arrays(at, rows["actor_id"].combine_chunks()),
+        "frame": rows["frame"].take(at),
+        "lane_id": pa.DictionaryArray.from_arrays(pa.array(lane.astype(np.int32)), lane_ids),
+        "dist_m": pa.array(dist), "heading_diff_rad": pa.array(diff),
+    } | {k: rows[k].take(at) for k in keys}
+    return pa.table([columns[c] for c in names], names=names)

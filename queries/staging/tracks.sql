@@ -1,5 +1,6 @@
 -- staging: tracks
--- grain: one row per (drive_id, actor_id, frame), canonical columns, kinematics completed
+-- grain: one row per row of tracks_raw, in its order: the row's row_key and its completed heading_rad, speed_mps
+--        and accel_mps2 (ingest stores them with the row's other columns, which it passes by itself)
 -- reads: tracks_raw (a reader's rows in (drive_id, actor_id, frame) order, with track_no the same for every
 --        row of one (drive_id, actor_id) and different from its neighbours'; heading_rad, speed_mps, accel_mps2
 --        may be NULL; drive_key, actor_key, row_key: the integer keys ingest assigns, schema.TRACK_KEYS)
@@ -16,7 +17,9 @@
 -- Speed: the rows arrive in track order, so every window runs over that order (an empty OVER (), which DuckDB
 -- guarantees keeps the input order of one table: docs "Order Preservation") and a neighbour counts only when it
 -- has the row's track_no. Partitions by drive and actor would sort on strings, several times the CPU of these
--- windows for identical results (benchmarks/README.md). DuckDB only: Spark keeps no input order.
+-- windows for identical results (benchmarks/README.md). DuckDB only: Spark keeps no input order. Only the columns
+-- the windows need go through them (each window holds every column it passes on: the row's other columns, passed
+-- through too, doubled the query's CPU).
 with
 
 neighbours as (
@@ -112,14 +115,7 @@ accel_window as (
 )
 
 select
-    drive_id,
-    actor_id,
-    kind,
-    is_ego,
-    frame,
-    t_s,
-    x_m,
-    y_m,
+    row_key,
     heading_filled_rad as heading_rad,
     speed_filled_mps as speed_mps,
     coalesce(
@@ -131,10 +127,5 @@ select
                 + case when raw_accel_mps2 is null then 0 else 1 end + case when a_p1 is null then 0 else 1 end
                 + case when a_p2 is null then 0 else 1 end, 0
             )
-    ) as accel_mps2,
-    length_m,
-    width_m,
-    drive_key,
-    actor_key,
-    row_key
+    ) as accel_mps2
 from accel_window
