@@ -4,6 +4,7 @@ on S (~1 M track rows), M (~10 M) and L (>= 50 M), against a plain DuckDB scan m
     make bench TIER=S                       # = python -m benchmarks.tiers --tier S
     python -m benchmarks.tiers --tier M --ego every:10
     python -m benchmarks.tiers --tier S --engine polars   # also re-match with the Polars engine, same run
+    python -m benchmarks.tiers --tier S --baseline-only --db COPY.duckdb  # only the per-pair baseline comparison
 
 Input. The base drives are the bundled real drives (tests/data: 92 NGSIM scenes via CommonRoad, 4 nuScenes
 scenes via ScenarioNet, 5 Argoverse 2 logs) and SUMO drives: the bundled motorway and junction runs and, when
