@@ -101,6 +101,12 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
             line |= {(m, a, b), (m, b, a)}
     maps = dict(zip(t["drive_inputs"]["drive_id"], t["drive_inputs"]["map_id"], strict=True))
     lanes_by_drive = dict(tuple(lanes.groupby("drive_id")))
+    # the lanes each actor's centre is inside (headed their way), per frame: where two lanes overlap (a fork, a lane
+    # widening into two) a centre inside both is in either
+    tl = t["track_lanes"]
+    inside_rows = tl[(tl["dist_m"] == 0) & (tl["heading_diff_rad"].abs() < math.pi / 2)]
+    inside = {key: set(zip(g["frame"], g["lane_id"], strict=True))
+              for key, g in inside_rows.groupby(["drive_id", "actor_id"])}
     ego_lanes = dict(tuple(t["ego_lanes"].groupby(["drive_id", "ego_id"])))
     out = []
     for drive_id, drive in t["tracks"].groupby("drive_id"):
@@ -131,9 +137,12 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 vehicle = aa["kind"].iloc[0] in VEHICLE_KINDS
                 limit = range_m if vehicle else min(range_m, OBJECT_RELATION_RANGE_M)
                 ego_lane, actor_lane = ee["lane_id_ego"].to_numpy(), aa["lane_id"].to_numpy()
+                # the same lane: the lane line, or one centre inside the other's lane
+                ego_inside, actor_inside = inside.get((drive_id, ego), set()), inside.get((drive_id, actor), set())
+                same = np.array([(maps[drive_id], x, y) in line or (f, x) in actor_inside or (f, y) in ego_inside
+                                 for f, x, y in zip(frames, ego_lane, actor_lane, strict=True)], dtype=bool)
                 # the actor's road: the ego's lane, a lane the ego drove in during the last same_road_limit of
-                # its lane run, or (while the ego is in the first lane of its lane run) the lane line
-                same = np.array([(maps[drive_id], x, y) in line for x, y in zip(ego_lane, actor_lane, strict=True)])
+                # its lane run, or (while the ego is in the first lane of its lane run) the same lane
                 first = np.array([first_lane.get(run) == x for run, x in zip(ee["lane_run"], ego_lane, strict=True)])
                 road = np.array([
                     (run, lane) in visited.index and visited.loc[(run, lane), "min"] <= ts
@@ -149,7 +158,10 @@ def follower_vehicle(t: dict[str, pd.DataFrame], p: dict[str, object], range_m: 
                 elsewhere = _bound_elsewhere(ee["t_s"].to_numpy(), ee["lane_run"].to_numpy(), ego_lane, actor_lane,
                                              road, g["dx"] < 0, g["dist2"] <= limit * limit, visited, nxt,
                                              maps[drive_id], limit_s)
-                keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & (g["lon_gap"] > 0)
+                # behind: past the ego's rear bumper, or along the road on a lane of the ego's line that it drove
+                # before its present one, boxes apart (a long ego turning sharply swings its rear across that lane)
+                behind_ego = (g["lon_gap"] > 0) | (same & road & (actor_lane != ego_lane) & (g["box_distance"] > 0))
+                keep = ((g["dist2"] <= limit * limit) & pd.notna(ego_lane) & (g["dx"] < 0) & behind_ego
                         & (on_road | turning))
                 if not keep.any():
                     continue

@@ -4,6 +4,7 @@ on S (~1 M track rows), M (~10 M) and L (>= 50 M), against a plain DuckDB scan m
     make bench TIER=S                       # = python -m benchmarks.tiers --tier S
     python -m benchmarks.tiers --tier M --ego every:10
     python -m benchmarks.tiers --tier S --engine polars   # also re-match with the Polars engine, same run
+    python -m benchmarks.tiers --tier S --baseline-only --db COPY.duckdb  # only the per-pair baseline comparison
 
 Input. The base drives are the bundled real drives (tests/data: 92 NGSIM scenes via CommonRoad, 4 nuScenes
 scenes via ScenarioNet, 5 Argoverse 2 logs) and SUMO drives: the bundled motorway and junction runs and, when
@@ -230,17 +231,18 @@ def param_rematch(db: Path, ego: str, change: tuple[str, dict[str, str]]) -> dic
 
 def run_baseline(db: Path, ego: str) -> dict[str, object]:
     """Time the SQL matcher and the per-pair baseline on the baseline's two scenarios, with the meaning the baseline
-    implements (baseline.SAME_MEANING), and check that they find exactly the same matches."""
+    implements (baseline.SAME_MEANING), and check that they find exactly the same matches. Wall and CPU seconds
+    (all threads) of each side: on a shared machine the CPU ratio is the steadier one. Writes matches into ``db``."""
     sys.path.insert(0, str(ROOT))
     from benchmarks import baseline
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), cpu_seconds()
     # force: the drives were just matched, and an up-to-date run would be skipped
     match(db, scenarios=list(BASELINE_SCENARIOS), ego=ego, force=True, overrides=baseline.SAME_MEANING)
-    sql_s = time.perf_counter() - start
-    start = time.perf_counter()
+    sql_s, sql_cpu = time.perf_counter() - start, cpu_seconds() - cpu
+    start, cpu = time.perf_counter(), cpu_seconds()
     found = baseline.run(db, baseline.SAME_MEANING)
-    seconds = time.perf_counter() - start
+    seconds, seconds_cpu = time.perf_counter() - start, cpu_seconds() - cpu
     with duckdb.connect(str(db), read_only=True) as con:
         ours = con.sql("select scenario, drive_id, ego_id, actor_id, start_frame, end_frame from matches").pl()
     agree = {}
@@ -248,8 +250,35 @@ def run_baseline(db: Path, ego: str) -> dict[str, object]:
         mine = set(ours.filter(pl.col("scenario") == name).drop("scenario").iter_rows())
         theirs = {(r.drive_id, r.ego_id, r.actor_id, int(r.start_frame), int(r.end_frame))
                   for r in frame.itertuples()}
-        agree[name] = {"sql": len(mine), "baseline": len(theirs), "same": mine == theirs}
-    return {"baseline_s": seconds, "sql_s": sql_s, "ratio_to_baseline": seconds / sql_s, "matches": agree}
+        agree[name] = {"sql": len(mine), "baseline": len(theirs), "same": mine == theirs,
+                       "sql_only": sorted(mine - theirs), "baseline_only": sorted(theirs - mine)}
+    return {"baseline_s": seconds, "sql_s": sql_s, "ratio_to_baseline": seconds / sql_s,
+            "baseline_cpu_s": seconds_cpu, "sql_cpu_s": sql_cpu, "cpu_ratio_to_baseline": seconds_cpu / sql_cpu,
+            "matches": agree}
+
+
+def baseline_markdown(b: dict) -> str:
+    return (f"**Per-pair baseline** (follower_vehicle + cyclist_close_to_moving_sut): {b['baseline_s']:.1f} s, "
+            f"CPU {b['baseline_cpu_s']:.1f} s, vs the SQL matcher's {b['sql_s']:.1f} s, CPU {b['sql_cpu_s']:.1f} s, "
+            f"on the same two scenarios: **{b['ratio_to_baseline']:.1f}x** wall, "
+            f"**{b['cpu_ratio_to_baseline']:.1f}x** CPU; same matches: "
+            + ", ".join(f"{k} {v['sql']} / {v['baseline']} ({'identical' if v['same'] else 'DIFFERENT'})"
+                        for k, v in b["matches"].items()) + ".")
+
+
+def baseline_only(db: Path, ego: str, tier: str) -> dict:
+    """The baseline comparison alone on an ingested file (it re-matches the two scenarios into it: pass a copy)."""
+    report = {"db": str(db), "ego": ego, "measured_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+              "load_average": os.getloadavg(), **run_baseline(db, ego)}
+    text = (f"# Tier {tier}: per-pair baseline only, on {db.name}\n\nMeasured {report['measured_at']}, load average "
+            + " / ".join(f"{x:.1f}" for x in report["load_average"]) + " (1 / 5 / 15 min) at the start.\n\n"
+            + baseline_markdown(report) + "\n")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{tier}_baseline.json").write_text(json.dumps(report, indent=2))
+    (RESULTS / f"{tier}_baseline.md").write_text(text)
+    print(text)
+    print(f"written to {RESULTS / tier}_baseline.json and .md")
+    return report
 
 
 def outputs_against(reference: Path, other: Path) -> dict[str, str]:
@@ -333,12 +362,7 @@ def markdown(r: dict) -> str:
                   f"{e['cpu_ratio_to_duckdb']:.2f}x its CPU; peak RSS {e['peak_rss_bytes'] / 2**30:.2f} GiB; outputs against DuckDB's: "
                   + ", ".join(f"{k} {v}" for k, v in e["outputs"].items()) + "."]
     if r.get("baseline"):
-        b = r["baseline"]
-        lines += ["", f"**Per-pair baseline** (follower_vehicle + cyclist_close_to_moving_sut): {b['baseline_s']:.1f} s "
-                  f"vs the SQL matcher's {b['sql_s']:.1f} s on the same two scenarios: "
-                  f"**{b['ratio_to_baseline']:.1f}x**; same matches: "
-                  + ", ".join(f"{k} {v['sql']} / {v['baseline']} ({'identical' if v['same'] else 'DIFFERENT'})"
-                              for k, v in b["matches"].items()) + "."]
+        lines += ["", baseline_markdown(r["baseline"])]
     return "\n".join(lines) + "\n"
 
 
@@ -354,7 +378,13 @@ def main(argv: list[str] | None = None) -> dict:
                         help="store this run's matches, phases and KPIs as the tier's golden (benchmarks/golden/)")
     parser.add_argument("--engine", action="append", default=[], choices=["polars"], dest="engines",
                         help="also re-match the ingested file with this engine and compare it with DuckDB's re-match")
+    parser.add_argument("--baseline-only", action="store_true",
+                        help="only compare the per-pair baseline with the SQL matcher on an ingested file (--db)")
+    parser.add_argument("--db", type=Path, help="with --baseline-only: the ingested file (it is re-matched: a copy; "
+                        "default benchmarks/work/<TIER>/bench.duckdb)")
     args = parser.parse_args(argv)
+    if args.baseline_only:
+        return baseline_only(args.db or WORK / args.tier / "bench.duckdb", args.ego, args.tier)
     rows = args.rows or TIERS[args.tier]
     work = WORK / args.tier
     shutil.rmtree(work, ignore_errors=True)

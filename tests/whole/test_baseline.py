@@ -12,6 +12,7 @@ import pytest
 
 from logiq_sql.ingestion.ingest import ingest
 from logiq_sql.matching.match import match
+from tests.helpers import intervals
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
@@ -43,6 +44,42 @@ def test_baseline_finds_the_same_matches(matched, scenario):
                 for r in theirs[scenario].itertuples()}
     assert sql, "the sample must have matches for the comparison to mean something"
     assert per_pair == sql
+
+
+def _phase_cases() -> list[str]:
+    from tests.matching import test_phases
+
+    return sorted(name for name in dir(test_phases) if name.startswith("test_"))
+
+
+@pytest.mark.parametrize("case", _phase_cases())
+def test_baseline_agrees_on_the_hand_made_phase_cases(case, tmp_path, monkeypatch):
+    """Every hand-made case of tests/matching/test_phases.py, run again with the baseline beside the SQL matcher:
+    wherever a case matches follower_vehicle or cyclist_close_to_moving_sut, both find the same matches under the
+    meaning the baseline implements (the case's own overrides and baseline.SAME_MEANING). Each rule the SQL gains
+    with a case (a sharp turn, lanes that overlap) fails here until the baseline reads it the same way."""
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import baseline
+    from tests.matching import test_phases
+
+    keys = ["drive_id", "ego_id", "actor_id", "start_frame", "end_frame"]
+    compared = []
+
+    def run_both(db, scenario, **kw):
+        found = intervals(match(db, scenarios=[scenario], **kw).matches, scenario)
+        if scenario in baseline.BASELINES:
+            overrides = {**kw.pop("overrides", {}), **baseline.SAME_MEANING}
+            ours = match(db, scenarios=[scenario], overrides=overrides, force=True, **kw).matches
+            theirs = baseline.run(db, overrides)[scenario]
+            assert set(ours.filter(pl.col("scenario") == scenario).select(keys).iter_rows()) == {
+                (r.drive_id, r.ego_id, r.actor_id, int(r.start_frame), int(r.end_frame)) for r in theirs.itertuples()}
+            compared.append(scenario)
+        return found
+
+    monkeypatch.setattr(test_phases, "run", run_both)
+    getattr(test_phases, case)(tmp_path)
+    if not compared:
+        pytest.skip("the case matches neither of the baseline's scenarios")
 
 
 def test_component_parts_count_what_the_pipeline_computes(tmp_path):
