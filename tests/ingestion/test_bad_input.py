@@ -675,9 +675,9 @@ def test_ingest_gives_duckdb_half_the_memory_limit(tmp_path, monkeypatch, limit,
     seen = []
     write_drives = ingestion.write_drives
 
-    def spy(con, drives):
+    def spy(con, drives, *rest):
         seen.append(con.execute("select current_setting('memory_limit')").fetchall()[0][0])
-        return write_drives(con, drives)
+        return write_drives(con, drives, *rest)
 
     monkeypatch.setattr(ingestion, "write_drives", spy)
     ingest("parquet", [write(tmp_path / "in", scene())], tmp_path / "x.duckdb")
