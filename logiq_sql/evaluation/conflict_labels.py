@@ -44,7 +44,10 @@ from logiq_sql.evaluation.labels import (
     GREEN,
     LABEL_SCHEMA,
     LEFT_TURN_DIRS,
+    actor_in_frames,
+    actor_out_frames,
     conflict_zones,
+    ego_in_frames,
     is_vehicle,
     label_sumo,
     load_run,
@@ -94,16 +97,11 @@ def candidates(rows: pl.DataFrame, links: pl.DataFrame, path_lanes: pl.DataFrame
     ego_rows = egos.select(ego_id="vehicle_id", frame="frame", t_s="t_s", front_m="front_m",
                            speed_mps="speed_mps", total_m="total_m", tl="tl", link_index="link_index")
     actor_rows = paths.select(actor_id="vehicle_id", frame="frame", front_f="front_m")
-    # E's front reaches the conflict; A's rear leaves it; A's front reaches its stop line (first step of each)
-    ego_in = (pairs.select("ego_id", "enter_m").unique().join(ego_rows, on="ego_id")
-              .filter(pl.col("front_m") >= pl.col("enter_m") - EPS)
-              .group_by("ego_id", "enter_m").agg(ego_in=pl.col("frame").min()))
-    actor_out = (pairs.select("actor_id", "leave_m_f", "length_m_f").unique().join(actor_rows, on="actor_id")
-                 .filter(pl.col("front_f") - pl.col("length_m_f") > pl.col("leave_m_f") + EPS)
-                 .group_by("actor_id", "leave_m_f", "length_m_f").agg(actor_out=pl.col("frame").min()))
-    actor_in = (pairs.select("actor_id", "enter_m_f").unique().join(actor_rows, on="actor_id")
-                .filter(pl.col("front_f") >= pl.col("enter_m_f") - EPS)
-                .group_by("actor_id", "enter_m_f").agg(actor_in=pl.col("frame").min()))
+    # E's front reaches the conflict; A's rear leaves it; A's front reaches it; A's front reaches its stop line
+    # (first step of each)
+    ego_in = ego_in_frames(pairs, egos).rename({"ego_in_frame": "ego_in"})
+    actor_out = actor_out_frames(pairs, paths).rename({"actor_out_frame": "actor_out"})
+    actor_in = actor_in_frames(pairs, paths).rename({"actor_in_frame": "actor_in"})
     actor_entry = (actors.select("actor_id").join(actor_rows, on="actor_id").filter(pl.col("front_f") >= 0)
                    .group_by("actor_id").agg(actor_entry=pl.col("frame").min()))
     pairs = (pairs.join(ego_in, on=["ego_id", "enter_m"], how="left")
