@@ -187,8 +187,12 @@ class SparkEngine(Engine):
     def keep_frame(self, table: str, df) -> None:
         """Keep the Spark DataFrame ``df`` as the step ``table``: computed once, a temp view of that name."""
         self.describe(f"step {table}")
+        self._view(table, df.localCheckpoint(eager=True))  # later steps read it many times; plans stay short
+
+    def _view(self, table: str, df) -> None:
+        """``df`` as the temp view ``table``, in place of the step of that name before it (whose rows are
+        released)."""
         old = self.views.pop(table, None)
-        df = df.localCheckpoint(eager=True)  # later steps read it many times; plans stay short
         df.createOrReplaceTempView(table)
         self.views[table] = df
         if old is not None:
@@ -215,12 +219,7 @@ class SparkEngine(Engine):
         if shared:
             self.materialise(table, relative, values)
             return
-        old = self.views.pop(table, None)
-        df = self.spark.sql(query, args=bind(relative, values))
-        df.createOrReplaceTempView(table)
-        self.views[table] = df
-        if old is not None:
-            old.unpersist()
+        self._view(table, self.spark.sql(query, args=bind(relative, values)))
 
     def frame(self, sql: str) -> pl.DataFrame:
         text = sqlglot.transpile(as_query(sql), read="duckdb", write="spark")[0]
