@@ -168,7 +168,9 @@ def replicate(rows: int, out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
 
     def copied(frame: pl.LazyFrame) -> pl.LazyFrame:
-        shifted = frame.join(plan.lazy(), on="drive_id").with_columns(
+        # as a fleet's logs come: drive after drive in the plan's order, each drive's rows in the base's own
+        # (actor, frame) order (an unordered join dealt the copies of a row out side by side)
+        shifted = frame.join(plan.lazy(), on="drive_id", maintain_order="right_left").with_columns(
             pl.col("drive_id") + "~" + pl.col("copy").cast(pl.String),
             pl.col("frame") + pl.col("frame_shift"))
         if "t_s" in frame.collect_schema().names():

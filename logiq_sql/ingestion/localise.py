@@ -379,10 +379,25 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
     lane_ids = pl.concat([index.lane_ids for index in indexes]).cast(pl.String).to_arrow().cast(pa.string())
     at = pa.array(row.astype(np.int32, copy=False))  # a batch holds far fewer than 2^31 rows
     columns = {
-        "drive_id": pa.DictionaryArray.from_arrays(at, rows["drive_id"].combine_chunks()),
-        "actor_id": pa.DictionaryArray.from_arrays(at, rows["actor_id"].combine_chunks()),
+        "drive_id": _strings_of(rows, "drive_id", ("drive_key",), row, at),
+        "actor_id": _strings_of(rows, "actor_id", ("drive_key", "actor_key"), row, at),
         "frame": rows["frame"].take(at),
         "lane_id": pa.DictionaryArray.from_arrays(pa.array(lane.astype(np.int32)), lane_ids),
         "dist_m": pa.array(dist), "heading_diff_rad": pa.array(diff),
     } | {k: rows[k].take(at) for k in keys}
     return pa.table([columns[c] for c in names], names=names)
+
+
+def _strings_of(rows: pa.Table, column: str, keys: tuple[str, ...], row: np.ndarray, at: pa.Array) -> pa.Array:
+    """``column`` of the rows ``row`` (``at``: the same as Arrow) as a dictionary. With the integer ``keys`` that
+    tell its runs apart (a drive's rows, a track's), the dictionary holds one string per run of rows: DuckDB writes
+    such a column for less CPU than one over every row's string, which it is without the keys."""
+    if not all(k in rows.column_names for k in keys):
+        return pa.DictionaryArray.from_arrays(at, rows[column].combine_chunks())
+    key = [rows[k].to_numpy() for k in keys]
+    start = np.ones(rows.num_rows, dtype=bool)
+    start[1:] = np.logical_or.reduce([k[1:] != k[:-1] for k in key])
+    run = np.cumsum(start, dtype=np.int64) - 1
+    firsts = np.flatnonzero(start)
+    return pa.DictionaryArray.from_arrays(pa.array(run[row].astype(np.int32)),
+                                          rows[column].take(pa.array(firsts)).combine_chunks())

@@ -280,3 +280,34 @@ def test_a_median_speed_at_the_limit_is_decided_by_the_drive_s_own_median():
             ingestion.MAX_MEDIAN_SPEED_MPS
         for got in (ingestion.clean_batch([drive])[0], ingestion.clean_batch([other, drive, other])[1]):
             assert isinstance(got, InputError) == too_fast
+
+
+def test_drives_in_runs_are_sliced_and_interleaved_ones_are_not():
+    """``parquet.by_drive``: one run per drive in the order given gives each drive's rows; rows of a drive in two
+    runs, or runs in another order, give None (the reader then splits by value)."""
+    rows = pl.concat([scene("a"), scene("b"), scene("c")])
+    sizes = rows.group_by("drive_id", maintain_order=True).len()
+    runs = parquet.by_drive(rows, sizes)
+    assert list(runs) == ["a", "b", "c"]
+    for drive_id, part in runs.items():
+        assert part.equals(rows.filter(pl.col("drive_id") == drive_id))
+    split = pl.concat([scene("a").head(5), scene("b"), scene("a").slice(5), scene("c")])
+    assert parquet.by_drive(split, split.group_by("drive_id", maintain_order=True).len()) is None
+    assert parquet.by_drive(rows, sizes.reverse()) is None
+
+
+def test_ingest_stores_the_same_rows_whatever_the_order_of_the_file(tmp_path):
+    """A file as logs come (drive after drive, each in (actor, frame) order) and the same rows shuffled across
+    drives give the same tracks and track_lanes."""
+    ordered = pl.concat([scene(f"d{i}") for i in range(4)])
+    periods = {f"d{i}": 0.1 for i in range(4)}
+    files = {"ordered": ordered, "shuffled": ordered.sample(fraction=1.0, shuffle=True, seed=3)}
+    stored = {}
+    for name, tracks in files.items():
+        db = tmp_path / f"{name}.duckdb"
+        ingest("parquet", [write(tmp_path / name, tracks, periods)], db)
+        with duckdb.connect(str(db), read_only=True) as con:
+            stored[name] = {t: con.sql(f"select * from {t} order by all").pl() for t in ("tracks", "track_lanes")}
+    assert stored["ordered"]["track_lanes"].height > 0
+    for table in ("tracks", "track_lanes"):
+        assert stored["ordered"][table].equals(stored["shuffled"][table])

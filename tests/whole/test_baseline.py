@@ -108,3 +108,13 @@ def test_component_parts_count_what_the_pipeline_computes(tmp_path):
     assert counted == pairs.height > 0
     assert components.localisation(tracks) == stored > 0
     assert set(components.measure(tracks)) == {*components.PARTS, "localisation"}
+    # the lanes write writes every stored track_lanes row, as stored
+    lanes_parquet = tmp_path / "track_lanes.parquet"
+    with duckdb.connect(str(db), read_only=True) as con:
+        con.execute(f"copy track_lanes to '{lanes_parquet}' (format parquet)")
+    with duckdb.connect(str(tmp_path / "part.duckdb")) as con:
+        con.execute(components.LANES_WRITE, {"path": str(lanes_parquet)})
+        con.execute(f"attach '{db}' as ingested (read_only)")
+        assert con.execute("select count(*) from (select * from track_lanes except all "
+                           "select * from ingested.track_lanes)").fetchone()[0] == 0
+        assert con.execute("select count(*) from track_lanes").fetchone()[0] == stored

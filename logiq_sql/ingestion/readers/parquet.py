@@ -16,6 +16,7 @@ import math
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from logiq_sql.core import schema
@@ -149,8 +150,11 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
     for chunk in _chunks(lazy, sizes):
         in_chunk = chunk.group_by("drive_id", maintain_order=True).len()
         # the drives of a chunk are checked and cast a million rows at a time (memory stays that of a chunk)
+        runs = by_drive(chunk, in_chunk)
         for part_ids in batches(in_chunk.iter_rows(), SPLIT_ROWS):
-            part = chunk if len(part_ids) == in_chunk.height else chunk.filter(pl.col("drive_id").is_in(part_ids))
+            part = (chunk if len(part_ids) == in_chunk.height
+                    else pl.concat([runs[d] for d in part_ids]) if runs is not None
+                    else chunk.filter(pl.col("drive_id").is_in(part_ids)))
             drives = _drives_at_once(part, drives_meta, parts, tracks_where, drives_where, source_format)
             if drives is None:  # a column does not convert: drive by drive, which says where (and yields before)
                 for (drive_id,), rows in part.group_by("drive_id", maintain_order=True):
@@ -239,17 +243,32 @@ def _drives_at_once(rows: pl.DataFrame, drives_meta: dict[str, dict], maps: dict
     del rows
     egos = dict(tracks.filter(pl.col("is_ego") & pl.col("actor_id").is_not_null())
                 .group_by("drive_id").agg(pl.col("actor_id").unique().sort()).iter_rows())
-    split = tracks.partition_by("drive_id", as_dict=True, maintain_order=True) if tracks.height else {}
+    kept = sizes.filter(~pl.col("drive_id").is_in(list(refused)))
+    split = by_drive(tracks, kept)
+    if split is None:
+        split = {d: rows for (d,), rows in tracks.partition_by("drive_id", as_dict=True, maintain_order=True).items()}
     del tracks
     out = []
     for drive_id, n in sizes.iter_rows():
         if drive_id in refused:
             out.append(refused.pop(drive_id))
         else:
-            out.append(_read_drive(drive_id, split.pop((drive_id,)), n, periods[drive_id],
+            out.append(_read_drive(drive_id, split.pop(drive_id), n, periods[drive_id],
                                    drives_meta.get(drive_id, {}), maps, egos.get(drive_id, []), tracks_file,
                                    source_format))
     return out
+
+
+def by_drive(rows: pl.DataFrame, sizes: pl.DataFrame) -> dict[str, pl.DataFrame] | None:
+    """Each drive's rows as a slice of ``rows`` (no copy) when they are one run per drive in the order of
+    ``sizes`` (drive_id, len), as logs come; None when the drives' rows are interleaved or out of that order."""
+    if rows.height != sizes["len"].sum() or rows.select(
+            pl.col("drive_id").ne_missing(pl.col("drive_id").shift()).sum()).item() != sizes.height:
+        return None
+    starts = np.cumsum(sizes["len"].to_numpy()) - sizes["len"].to_numpy()
+    runs = {d: rows.slice(int(a), n) for (d, n), a in zip(sizes.iter_rows(), starts, strict=True)}
+    # the runs must be the drives of ``sizes``, each once (a drive in two runs has more run starts than drives)
+    return runs if all(r.height == 0 or r["drive_id"][0] == d for d, r in runs.items()) else None
 
 
 class _Parts:
