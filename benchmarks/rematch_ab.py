@@ -44,7 +44,8 @@ def cpu():
 def matches():
     with duckdb.connect(sys.argv[1], read_only=True) as con:
         return con.execute(
-            "select (select md5(string_agg(m::varchar, ';' order by match_id)) from matches as m) || "
+            "select (select md5(string_agg(m::varchar, ';' order by match_id)) "
+            "from (select * exclude (run_id) from matches) as m) || "
             "(select md5(string_agg(p::varchar, ';' order by match_id, phase_index)) from match_phases as p) || "
             "(select md5(string_agg(k::varchar, ';' order by match_id)) from kpis as k)").fetchone()[0]
 out = {}

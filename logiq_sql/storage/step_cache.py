@@ -27,10 +27,8 @@ import uuid
 from dataclasses import dataclass, field
 
 import duckdb
-import polars as pl
 
 from logiq_sql.core.errors import LogiqError
-from logiq_sql.core.sql import registered
 from logiq_sql.storage import tables
 from logiq_sql.storage.db import stored_schema
 
@@ -159,6 +157,7 @@ class StepCache:
     _usable: bool = False
     _outside: set[str] = field(default_factory=set)  # the keys that entries of drives outside the batch name
     _columns: dict[str, str] = field(default_factory=dict)  # cache table -> the column naming each row's drive
+    _owners: tuple[str, ...] = ()  # the scenarios the temp table _owners lists
 
     key = staticmethod(cache_key)
     source_text = staticmethod(source_text)
@@ -270,13 +269,16 @@ class StepCache:
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
                                    "As the step's query returns it (step_cache.step names the query; its header "
                                    "describes the column).")
-        with registered(con, "_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String})):
-            if not write and self._entries(step, key) == len(owners) * len(self._batch):
-                return  # each owner's entry already names this key for every drive of the batch
-            self._point_entries(step, key, rows_of if write else "", data, write)
-            if write:
-                self._write_s += time.process_time() - started
-                self._cells += cells
+        if owners != self._owners:  # a temp table, made again only when the owners change (once per scenario)
+            con.execute("create or replace temp table _owners as select unnest($o::varchar[]) as scenario",
+                        {"o": list(owners)})
+            self._owners = owners
+        if not write and self._entries(step, key) == len(owners) * len(self._batch):
+            return  # each owner's entry already names this key for every drive of the batch
+        self._point_entries(step, key, rows_of if write else "", data, write)
+        if write:
+            self._write_s += time.process_time() - started
+            self._cells += cells
 
     def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool) -> None:
         """In one transaction: the batch's rows (``rows_of``, a table or subquery) written to ``data`` (``write``),
