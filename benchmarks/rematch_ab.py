@@ -12,6 +12,11 @@ it does not know). Prints the medians and base / this as the speed-up; checks bo
 ``--set NAME=VALUE`` (repeatable): after its ``match --force``, each child also re-matches with that parameter
 changed, as ``match --set`` does (the step cache holds what the forced run computed), and the same is reported
 for that re-match (``param_cpu_s``, ``param_wall_s``; same matches checked too).
+
+``--tiers-changes``: instead, the re-matches benchmarks/tiers.py times (its PARAM_CHANGE, then back to the
+defaults, its DURATION_CHANGE, then back), each timed, on the file as it is (``--no-force``: no ``match --force``
+first; use a file whose step cache holds the default run, e.g. a tier file after its benchmark).
+"Same results" compares matches, match_phases and kpis (a digest of their rows, in order) after each re-match.
 """
 
 from __future__ import annotations
@@ -25,33 +30,37 @@ import sys
 import tempfile
 from pathlib import Path
 
+from benchmarks.tiers import DURATION_CHANGE, PARAM_CHANGE
+
 ROOT = Path(__file__).resolve().parents[1]
 
 CHILD = """
 import json, resource, sys, time
+import duckdb
 from logiq_sql import match
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
-start, c = time.perf_counter(), cpu()
-match(sys.argv[1], ego=sys.argv[2], force=True)
-wall, used = time.perf_counter() - start, cpu() - c
-import duckdb
 def matches():
     with duckdb.connect(sys.argv[1], read_only=True) as con:
-        return con.execute("select md5(string_agg(match_id, ',' order by match_id)) from matches").fetchone()[0]
-out = {"wall_s": wall, "cpu_s": used, "matches": matches()}
-overrides = json.loads(sys.argv[3])
-if overrides:
+        return con.execute(
+            "select (select md5(string_agg(m::varchar, ';' order by match_id)) "
+            "from (select * exclude (run_id) from matches) as m) || "
+            "(select md5(string_agg(p::varchar, ';' order by match_id, phase_index)) from match_phases as p) || "
+            "(select md5(string_agg(k::varchar, ';' order by match_id)) from kpis as k)").fetchone()[0]
+out = {}
+# (prefix, force, overrides): the re-matches to time, in order
+for prefix, force, overrides in json.loads(sys.argv[3]):
     start, c = time.perf_counter(), cpu()
-    match(sys.argv[1], ego=sys.argv[2], overrides=overrides)
-    out.update(param_wall_s=time.perf_counter() - start, param_cpu_s=cpu() - c, param_matches=matches())
+    match(sys.argv[1], ego=sys.argv[2], force=force, overrides=overrides)
+    out.update({prefix + "wall_s": time.perf_counter() - start, prefix + "cpu_s": cpu() - c,
+                prefix + "matches": matches()})
 print(json.dumps(out))
 """
 
 
-def run(code: Path, db: Path, ego: str, overrides: dict[str, str]) -> dict[str, float]:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego, json.dumps(overrides)], check=True, capture_output=True, text=True,
+def run(code: Path, db: Path, ego: str, plan: list[tuple[str, bool, dict[str, str]]]) -> dict[str, float]:
+    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego, json.dumps(plan)], check=True, capture_output=True, text=True,
                          env={"PYTHONPATH": str(code), "PATH": str(Path(sys.executable).parent)}, cwd=code)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -64,8 +73,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ego", default="every:10")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="also time a re-match with this parameter changed, after each forced one")
+    parser.add_argument("--tiers-changes", action="store_true",
+                        help="time the re-matches of benchmarks/tiers.py (one parameter changed and back, twice)")
+    parser.add_argument("--no-force", action="store_true", help="no match --force first")
     args = parser.parse_args(argv)
-    overrides = dict(item.split("=", 1) for item in args.set)
+    if args.set and args.tiers_changes:
+        parser.error("--set or --tiers-changes, not both")
+    changes = [("param_", dict(item.split("=", 1) for item in args.set))] if args.set else []
+    if args.tiers_changes:
+        changes = [("param_", PARAM_CHANGE[1]), ("param_back_", {}), ("duration_", DURATION_CHANGE[1]),
+                   ("duration_back_", {})]
+    plan = ([] if args.no_force else [("", True, {})]) + [(prefix, False, o) for prefix, o in changes]
+    labels = {"": "match --force", **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
     with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
         base = Path(tmp) / "base"
         base.mkdir()
@@ -77,9 +96,10 @@ def main(argv: list[str] | None = None) -> None:
             for name, code in versions.items():
                 copy = Path(tmp) / f"{name.replace('/', '_')}.duckdb"
                 shutil.copy(args.db, copy)
-                times[name].append(run(code, copy, args.ego, overrides))
+                times[name].append(run(code, copy, args.ego, plan))
                 print(f"round {i + 1} {name}: {times[name][-1]}", flush=True)
-    for label, prefix in (("match --force", ""), (f"re-match with {overrides}", "param_"))[:1 + bool(overrides)]:
+    for prefix in (p for p, _, _ in plan):
+        label = labels[prefix]
         med = {name: {k: statistics.median(t[prefix + k] for t in runs) for k in ("cpu_s", "wall_s")}
                for name, runs in times.items()}
         same = len({t[prefix + "matches"] for runs in times.values() for t in runs}) == 1

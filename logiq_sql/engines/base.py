@@ -47,6 +47,9 @@ class Engine:
 
     name = "engine"
     owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
+    # the next steps scan the batch's per-drive input tables several times over (the relations and junctions):
+    # the DuckDB engine copies the batch's rows before such a step runs, where other steps read them through views
+    wide: bool = False
 
     def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
         """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``

@@ -25,6 +25,7 @@ class DuckEngine(Engine):
         self._views: set[str] = set()  # step tables that are views of a kept table
         self._loaded: set[str] = set()  # step tables that are views of the step cache's rows
         self._keys: dict[str, str | None] = {}  # the batch's step tables -> their cache keys (None: not cacheable)
+        self._narrowed: set[str] = set()  # per-drive input tables that are views of the batch's rows, not copies
 
     def _cache_key(self, text: str, bound: dict[str, object], reads: frozenset[str]) -> str | None:
         """The step's cache key, or None when the cache is off or the step reads a table of unknown content."""
@@ -77,9 +78,14 @@ class DuckEngine(Engine):
 
     def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
-        self._cached(table, f"{table} {compute.__module__}", key, lambda: self.register(table, compute(self)))
+        def run() -> None:
+            self._copy_inputs(reads)
+            self.register(table, compute(self))
+
+        self._cached(table, f"{table} {compute.__module__}", key, run)
 
     def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
+        self._copy_inputs(tables_read(relative))
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
             materialise(self.con, table, relative, values, holding)
@@ -116,20 +122,37 @@ class DuckEngine(Engine):
         self._keys = {}
         if self.cache is not None:
             self.cache.start_batch()
-        # a temp table shadows the stored table of the same name, so every query of the batch reads the batch's
+        # a temp view shadows the stored table of the same name, so every query of the batch reads the batch's
         # rows: a batch then costs what its drives hold, not what the whole file holds (queries reading the whole
-        # track_lanes per batch made matching grow with batches x file size)
+        # track_lanes per batch made matching grow with batches x file size). Views, copied only when a step that
+        # reads them widely runs (``wide``): a re-match whose steps come from the step cache, or that reruns only
+        # steps reading a few of the batch's rows, copies nothing
         stored = stored_schema(self.con)
         (others,) = self.con.execute(f"select count(*) from {stored}.drive_inputs where status = 'ingested' and "
                                      "drive_id not in (select drive_id from run_drives)").fetchall()[0]
         if not others:  # the batch is every drive of the file: its tables already hold just the batch's rows
             return
         for table in PARTITIONED_BY_DRIVE:
-            self.con.execute(f"create or replace temp table {table} as select * from {stored}.{table} "
+            self.con.execute(f"create or replace temp view {table} as select * from {stored}.{table} "
                              "where drive_id in (select drive_id from run_drives)")
+        self._narrowed = set(PARTITIONED_BY_DRIVE)
+
+    def _copy_inputs(self, reads) -> None:
+        """With ``wide``: the batch's rows of the per-drive input tables in ``reads`` copied into temp tables
+        (once per batch), since such steps scan them several times over."""
+        if not self.wide:
+            return
+        stored = stored_schema(self.con)
+        for table in self._narrowed & set(reads):
+            self.con.execute(f"drop view temp.main.{table}")
+            self.con.execute(f"create temp table {table} as select * from {stored}.{table} "
+                             "where drive_id in (select drive_id from run_drives)")
+            self._narrowed.discard(table)
 
     def release_drives(self) -> None:
         self._forget_shared()
         self._keys = {}
         for table in PARTITIONED_BY_DRIVE:
-            self.con.execute(f"drop table if exists temp.main.{table}")
+            kind = "view" if table in self._narrowed else "table"
+            self.con.execute(f"drop {kind} if exists temp.main.{table}")
+        self._narrowed = set()

@@ -43,15 +43,19 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
     engine = as_engine(con)
     engine.owners = tuple(s.name for s in group)
     values = {**values, "relation_kinds_csv": ALL_KINDS_CSV if every_kind else relation_kinds_csv(group)}
-    with stage("relations"):
-        engine.materialise("egos", "relations/egos.sql", values)
-        for table, rel in RELATION_STEPS:
-            engine.materialise(table, rel, values)
-    if any(s.junctions for s in group):
-        with stage("junctions"):
-            for table, rel in JUNCTION_STEPS:
+    engine.wide = True
+    try:
+        with stage("relations"):
+            engine.materialise("egos", "relations/egos.sql", values)
+            for table, rel in RELATION_STEPS:
                 engine.materialise(table, rel, values)
-            engine.derive("encroachments", encroachments, ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA)
+        if any(s.junctions for s in group):
+            with stage("junctions"):
+                for table, rel in JUNCTION_STEPS:
+                    engine.materialise(table, rel, values)
+                engine.derive("encroachments", encroachments, ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA)
+    finally:
+        engine.wide = False
 
 
 def shared_phase_steps(group: list[Scenario], values: dict[str, dict[str, object]]) -> frozenset[tuple[str, tuple]]:

@@ -27,10 +27,8 @@ import uuid
 from dataclasses import dataclass, field
 
 import duckdb
-import polars as pl
 
 from logiq_sql.core.errors import LogiqError
-from logiq_sql.core.sql import registered
 from logiq_sql.storage import tables
 from logiq_sql.storage.db import stored_schema
 
@@ -157,13 +155,19 @@ class StepCache:
     steps: list[tuple[tuple[str, ...], tuple[str, ...], str, str]] = field(default_factory=list)
     _batch: tuple[str, ...] = ()
     _usable: bool = False
+    _outside: set[str] = field(default_factory=set)  # the keys that entries of drives outside the batch name
+    _columns: dict[str, str] = field(default_factory=dict)  # cache table -> the column naming each row's drive
+    _owners: tuple[str, ...] = ()  # the scenarios the temp table _owners lists
 
     key = staticmethod(cache_key)
     source_text = staticmethod(source_text)
 
     def start_batch(self) -> None:
         """The batch's drives (``run_drives``) with their ingest versions; the cache is off for the batch when a
-        drive has none."""
+        drive has none. The index's entries of the batch's drives are copied into ``_batch_entries`` (kept in step
+        with the index while the batch runs) and the keys that entries of other drives name are noted, so that
+        the look-ups of each step cost what the batch holds, not what the whole index holds (the index grows with
+        every drive of the file)."""
         self.con.execute("create or replace temp table _batch_versions as select r.drive_id, v.ingest_version, "
                          "d.drive_key from run_drives as r left join ingest_versions as v using (drive_id) "
                          "left join (select distinct drive_id, drive_key from drive_inputs) as d using (drive_id)")
@@ -172,6 +176,12 @@ class StepCache:
         self._usable = n > 0 and missing == 0
         self._batch = tuple(r[0] for r in self.con.execute("select drive_id from _batch_versions "
                                                              "order by drive_id").fetchall())
+        self.con.execute("create or replace temp table _batch_entries as select * from step_cache "
+                         "where drive_id in (select drive_id from _batch_versions)")
+        # (entries of other drives do not change while the batch runs: match writes only the batch's)
+        self._outside = {r[0] for r in self.con.execute(
+            "select distinct step_key from step_cache where drive_id not in (select drive_id from _batch_versions)"
+        ).fetchall()}
 
     @property
     def usable(self) -> bool:
@@ -180,7 +190,7 @@ class StepCache:
     def _holds(self, key: str) -> bool:
         """Whether every drive of the batch has an entry of ``key`` for its current ingest version."""
         (n,) = self.con.execute(
-            "select count(distinct c.drive_id) from step_cache as c join _batch_versions as b "
+            "select count(distinct c.drive_id) from _batch_entries as c join _batch_versions as b "
             "on c.drive_id = b.drive_id and c.ingest_version = b.ingest_version where c.step_key = $k",
             {"k": key}).fetchall()[0]
         return n == len(self._batch)
@@ -188,9 +198,14 @@ class StepCache:
     def _entries(self, step: str, key: str) -> int:
         """How many (owner, drive) entries of the batch name ``key`` for ``step`` at the current ingest version."""
         return self.con.execute(
-            "select count(*) from step_cache as c join _batch_versions as b on c.drive_id = b.drive_id "
+            "select count(*) from _batch_entries as c join _batch_versions as b on c.drive_id = b.drive_id "
             "and c.ingest_version = b.ingest_version where c.step = $s and c.step_key = $k "
             "and c.scenario in (select scenario from _owners)", {"s": step, "k": key}).fetchall()[0][0]
+
+    def _drive_column(self, table: str) -> str:
+        if table not in self._columns:
+            self._columns[table] = drive_column(self.con, table)
+        return self._columns[table]
 
     def load(self, table: str, key: str) -> bool:
         """Make the temp view ``table`` the cached rows of ``key`` for the batch, if every drive has them (no temp
@@ -201,13 +216,11 @@ class StepCache:
         if not self._holds(key):
             return False
         data = f"{TABLE_PREFIX}{key}"
-        column = drive_column(self.con, data)
+        column = self._drive_column(data)
         columns = "*" if column == "drive_id" else f"* exclude ({column})"
         # a table holds only the rows of the drives whose entries name it: when those are all of the batch, no
         # row needs filtering out
-        (others,) = self.con.execute("select count(*) from step_cache where step_key = $k and drive_id not in "
-                                     "(select drive_id from _batch_versions)", {"k": key}).fetchall()[0]
-        where = f" where {column} in (select drive_id from _batch_versions)" if others else ""
+        where = f" where {column} in (select drive_id from _batch_versions)" if key in self._outside else ""
         self.con.execute(f"create temp view {table} as select {columns} from {stored_schema(self.con)}.{data}{where}")
         return True
 
@@ -256,13 +269,16 @@ class StepCache:
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
                                    "As the step's query returns it (step_cache.step names the query; its header "
                                    "describes the column).")
-        with registered(con, "_owners", pl.DataFrame({"scenario": list(owners)}, schema={"scenario": pl.String})):
-            if not write and self._entries(step, key) == len(owners) * len(self._batch):
-                return  # each owner's entry already names this key for every drive of the batch
-            self._point_entries(step, key, rows_of if write else "", data, write)
-            if write:
-                self._write_s += time.process_time() - started
-                self._cells += cells
+        if owners != self._owners:  # a temp table, made again only when the owners change (once per scenario)
+            con.execute("create or replace temp table _owners as select unnest($o::varchar[]) as scenario",
+                        {"o": list(owners)})
+            self._owners = owners
+        if not write and self._entries(step, key) == len(owners) * len(self._batch):
+            return  # each owner's entry already names this key for every drive of the batch
+        self._point_entries(step, key, rows_of if write else "", data, write)
+        if write:
+            self._write_s += time.process_time() - started
+            self._cells += cells
 
     def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool) -> None:
         """In one transaction: the batch's rows (``rows_of``, a table or subquery) written to ``data`` (``write``),
@@ -272,24 +288,28 @@ class StepCache:
         con.execute("begin transaction")
         try:
             if write:
-                con.execute(f"delete from {stored}.{data} where {drive_column(con, data)} in "
+                con.execute(f"delete from {stored}.{data} where {self._drive_column(data)} in "
                             "(select drive_id from _batch_versions)")
                 con.execute(f"insert into {stored}.{data} select * from {rows_of}")
             con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
-                        "from step_cache where step = $s and step_key <> $k and scenario in (select scenario from "
-                        "_owners) and drive_id in (select drive_id from _batch_versions)", {"s": step, "k": key})
-            con.execute("delete from step_cache where step = $s and scenario in (select scenario from _owners) "
-                        "and drive_id in (select drive_id from _batch_versions)", {"s": step})
-            con.execute("insert into step_cache select o.scenario, $s, b.drive_id, $k, $t, b.ingest_version "
-                        "from _owners as o, _batch_versions as b", {"s": step, "k": key, "t": data})
+                        "from _batch_entries where step = $s and step_key <> $k and scenario in (select scenario "
+                        "from _owners)", {"s": step, "k": key})
+            for index in ("step_cache", "_batch_entries"):  # the batch's entries are all in both
+                con.execute(f"delete from {index} where step = $s and scenario in (select scenario from _owners) "
+                            "and drive_id in (select drive_id from _batch_versions)", {"s": step})
+                con.execute(f"insert into {index} select o.scenario, $s, b.drive_id, $k, $t, b.ingest_version "
+                            "from _owners as o, _batch_versions as b", {"s": step, "k": key, "t": data})
             for (old, old_table) in con.execute("select distinct step_key, table_name from _replaced").fetchall():
-                # the drives whose rows of the old key no entry refers to any more
-                column = drive_column(con, old_table)
+                # the drives whose rows of the old key no entry refers to any more (the replaced entries are the
+                # batch's, so only the batch's entries can still refer to those drives' rows)
+                column = self._drive_column(old_table)
                 con.execute(f"delete from {stored}.{old_table} where {column} in (select drive_id from _replaced "
-                            f"where step_key = $o) and {column} not in (select drive_id from step_cache where "
+                            f"where step_key = $o) and {column} not in (select drive_id from _batch_entries where "
                             "step_key = $o)", {"o": old})
-                if not con.execute("select count(*) from step_cache where step_key = $o", {"o": old}).fetchall()[0][0]:
+                if old not in self._outside and not con.execute(
+                        "select count(*) from _batch_entries where step_key = $o", {"o": old}).fetchall()[0][0]:
                     con.execute(f"drop table {stored}.{old_table}")
+                    self._columns.pop(old_table, None)
             con.execute("commit")
         except BaseException:
             con.execute("rollback")

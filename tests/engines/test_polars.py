@@ -215,6 +215,32 @@ def test_select_drives_narrows_the_per_drive_tables_to_the_batch(drives):
         con.close()
 
 
+def test_the_duckdb_engine_copies_a_batch_s_inputs_only_before_wide_steps(drives):
+    """A batch's per-drive inputs are temp views of its rows; only a step run with ``wide`` (the relation and
+    junction steps, ``prepare_relations``) copies the ones it reads into temp tables first: a re-match whose
+    computed steps read a few rows copies nothing."""
+    real, _ = drives
+    con = db.connect(real)
+    kinds_sql = ("select table_name, 'table' from duckdb_tables() where temporary and table_name in ('tracks', "
+                 "'track_lanes') union all select view_name, 'view' from duckdb_views() where temporary and "
+                 "view_name in ('tracks', 'track_lanes')")
+    try:
+        con.register("run_drives", pl.DataFrame({"drive_id": ["scene-0103"]}))
+        engine = DuckEngine(con)
+        engine.select_drives()
+        values = {"ego_mode": "all", "ego_every": 1, "ego_actor_ids_csv": ",", "ego_kinds_csv": ",vehicle,"}
+        engine.materialise("egos", "relations/egos.sql", values)  # reads tracks, not wide
+        assert dict(con.execute(kinds_sql).fetchall()) == {"tracks": "view", "track_lanes": "view"}
+        engine.wide = True
+        engine.materialise("egos", "relations/egos.sql", values)
+        assert dict(con.execute(kinds_sql).fetchall()) == {"tracks": "table", "track_lanes": "view"}
+        assert engine.frame("select distinct drive_id from tracks")["drive_id"].to_list() == ["scene-0103"]
+        engine.release_drives()
+        assert con.execute(kinds_sql).fetchall() == []
+    finally:
+        con.close()
+
+
 OUTPUTS = {  # table -> sort key: every output table the matcher writes, except the run log
     "matches": ["match_id"],
     "match_phases": ["match_id", "phase_index"],
