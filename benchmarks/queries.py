@@ -41,11 +41,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--db", type=Path, help="an ingested file (default the tier's)")
     parser.add_argument("--holding", action="store_true", help="time phase queries as a match runs them too")
+    parser.add_argument("--memory-limit", help="DuckDB's memory_limit (e.g. 2GB: the steps' rows spill to disk)")
     args = parser.parse_args(argv)
     scenarios = resolve_scenarios(None, {})
     values = {s.name: run_values(s, parse_ego(args.ego), 200.0) for s in scenarios}
     con = duckdb.connect(str(args.db or WORK / args.tier / "bench.duckdb"), read_only=True)
     con.execute("set enable_progress_bar = false")
+    if args.memory_limit:
+        con.execute("set memory_limit = $limit", {"limit": args.memory_limit})
     con.execute("create temp table run_drives as select drive_id from drive_inputs where status = 'ingested'")
     shared = values[scenarios[0].name]
     for table, rel in (("egos", "relations/egos.sql"), *RELATION_STEPS, *JUNCTION_STEPS):
@@ -84,6 +87,8 @@ def compare(con: duckdb.DuckDBPyConnection, rel: str, bound: dict[str, object], 
     differ = sum(con.execute(f"select count(*) from (select * from {x} except all select * from {y})")
                  .fetchall()[0][0] for x, y in ((a, b), (b, a)))
     n = con.execute(f"select count(*) from {a}").fetchall()[0][0]
+    for table in (a, b):  # a tier-M phase's rows take gigabytes
+        con.execute(f"drop table {table}")
     shown = rel + (" (rows where it holds)" if holding else "")
     print(f"{shown}: {n:,} rows; now {best['now']:.3f} s ({best_cpu['now']:.2f} CPU s), at {against} "
           f"{best[against]:.3f} s ({best_cpu[against]:.2f} CPU s); CPU {best_cpu[against] / best_cpu['now']:.2f}x; "
