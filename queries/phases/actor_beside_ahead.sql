@@ -32,68 +32,112 @@
 --                      beside it, 3 m and more to the side. True when the actor is not in the ego's lane again
 --                      later (the phase then does not chain anyway)
 -- segment = the ego's lane run: the ego keeps its lane while the actor cuts in.
+--
+-- How: only the pairs in which the actor is ever ahead in the ego's lane need its frames there; the others' frames
+-- have no last or next frame in the lane, so each condition read from them holds. Those pairs' frames ahead are
+-- counted in one window sort (frames_in_lane: how many so far were in the lane), and the last and next frame in the
+-- lane are the lane frames numbered frames_in_lane and frames_in_lane + 1 (equi-joins, not more window
+-- aggregates). A stretch of lane frames without a gap has one frame - frames_in_lane.
 with
 
-ahead as (
-    -- the frames at which the actor is ahead: the phase's grain, and all that its conditions read of the relation
-    select r.*, r.ego_lane_id as ego_lane_now_id
+lane_pairs as (
+    -- the pairs in which the actor is ahead in the ego's lane at some frame
+    select distinct drive_key, ego_key, actor_key
+    from relations
+    where dx_m > 0 and same_lane
+),
+
+counted as (
+    -- their frames ahead, with how many of them so far were in the ego's lane. Only the frames ahead count: a frame
+    -- at which the actor is not ahead ends its stay in the ego's lane like a gap in its frames does, and is never
+    -- in the ego's path
+    select
+        r.drive_key,
+        r.ego_key,
+        r.actor_key,
+        r.frame,
+        r.lane_run,
+        r.same_lane,
+        r.actor_lane_id,
+        not r.same_lane and r.adjacent_side is not null as beside,
+        not r.same_lane and r.adjacent_side is null as away,
+        abs(r.dy_m) <= $max_cut_in_lateral_offset_m as near_centre,
+        count(case when r.same_lane then 1 end) over (
+            partition by r.drive_key, r.ego_key, r.actor_key order by r.frame
+            rows between unbounded preceding and current row
+        ) as frames_in_lane
     from relations as r
+    inner join lane_pairs as p
+        on r.drive_key = p.drive_key and r.ego_key = p.ego_key and r.actor_key = p.actor_key
     where r.dx_m > 0
 ),
 
-per_frame as (
-    -- per frame, read forwards in one sort by actor (the ego's lane run only grows with the frame):
-    --   last_in_lane_frame     the actor's last frame ahead in the ego's lane so far in this lane run (the last one
-    --                          so far in any lane run, if that is this one)
-    --   last_not_beside_frame  its last frame so far neither in the ego's lane nor beside it
-    --   entry_frame            the first frame from this one on at which it is ahead in the ego's lane (at the
-    --                          phase's frames the actor is beside, not in the lane, so it is the next one)
-    --   in_path_frame          the first frame from this one on at which it is ahead in the ego's lane with its
-    --                          centre within max_cut_in_lateral_offset of the ego's side to side
-    --   frames_in_lane         how many frames so far it was ahead in the ego's lane: between two frames in the lane
-    --                          it stayed in the lane throughout iff this count grew by their distance in frames
-    -- Only the frames ahead count: a frame at which the actor is not ahead ends its stay in the ego's lane like a
-    -- gap in its frames does, and is never in the ego's path
+in_lane as (
+    -- the frames ahead in the ego's lane, numbered (frames_in_lane), each with its stretch: consecutive frames in the
+    -- lane, without a gap or a frame out of it, share frame - frames_in_lane
     select
-        *,
-        case when max(case when same_lane then lane_run end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between unbounded preceding and current row
-        ) = lane_run then max(case when same_lane then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between unbounded preceding and current row
-        ) end as last_in_lane_frame,
-        max(case when not same_lane and adjacent_side is null then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between unbounded preceding and current row
-        ) as last_not_beside_frame,
-        min(case when same_lane then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between current row and unbounded following
-        ) as entry_frame,
-        min(case when same_lane and abs(dy_m) <= $max_cut_in_lateral_offset_m then frame end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between current row and unbounded following
-        ) as in_path_frame,
-        count(case when same_lane then 1 end) over (
-            partition by drive_key, ego_key, actor_key order by frame
-            rows between unbounded preceding and current row
-        ) as frames_in_lane
-    from ahead
+        drive_key,
+        ego_key,
+        actor_key,
+        frames_in_lane,
+        frame,
+        lane_run,
+        actor_lane_id,
+        frame - frames_in_lane as stretch,
+        near_centre
+    from counted
+    where same_lane
+),
+
+stretch_paths as (
+    -- per stretch in one lane run, its last frame with the actor's centre within max_cut_in_lateral_offset of the
+    -- ego's side to side: a stay that begins at a frame of the stretch reaches the ego's path iff it is not earlier
+    select
+        drive_key,
+        ego_key,
+        actor_key,
+        stretch,
+        lane_run,
+        max(case when near_centre then frame end) as last_in_path_frame
+    from in_lane
+    group by drive_key, ego_key, actor_key, stretch, lane_run
+),
+
+per_frame as (
+    -- per frame of those pairs:
+    --   last_in_lane_frame  the actor's last frame ahead in the ego's lane so far in this lane run (the last one so
+    --                       far, if its lane run is this one; the lane run only grows with the frame)
+    --   left_lane_id        the lane the actor was in then
+    --   entry_frame         the first frame from this one on at which it is ahead in the ego's lane (at the phase's
+    --                       frames the actor is beside, not in the lane, so it is the next one), with its stretch
+    select
+        c.drive_key,
+        c.ego_key,
+        c.actor_key,
+        c.frame,
+        c.beside,
+        c.away,
+        case when last.lane_run = c.lane_run then last.frame end as last_in_lane_frame,
+        last.actor_lane_id as left_lane_id,
+        entry.frame as entry_frame,
+        entry.stretch as entry_stretch,
+        entry.lane_run as entry_lane_run
+    from counted as c
+    left join in_lane as last
+        on c.drive_key = last.drive_key and c.ego_key = last.ego_key and c.actor_key = last.actor_key
+        and c.frames_in_lane = last.frames_in_lane
+    left join in_lane as entry
+        on c.drive_key = entry.drive_key and c.ego_key = entry.ego_key and c.actor_key = entry.actor_key
+        and c.frames_in_lane + case when c.same_lane then 0 else 1 end = entry.frames_in_lane
 ),
 
 beside_after_in as (
-    -- the frames beside the ego, out of its lane, after the actor was in it in this lane run, with the lane the
-    -- actor was in then: the lane it left (a join back: last_value(... ignore nulls) does not run on every engine)
-    select
-        b.drive_key, b.ego_key, b.actor_key, b.frame, b.last_in_lane_frame, d.map_id, i.actor_lane_id as left_lane_id
+    -- the frames beside the ego, out of its lane, after the actor was in it in this lane run, with the lane it left
+    select b.drive_key, b.ego_key, b.actor_key, b.frame, b.last_in_lane_frame, d.map_id, b.left_lane_id
     from per_frame as b
-    inner join per_frame as i
-        on b.drive_key = i.drive_key and b.ego_key = i.ego_key and b.actor_key = i.actor_key
-        and b.last_in_lane_frame = i.frame
     inner join drive_inputs as d
         on b.drive_key = d.drive_key
-    where b.adjacent_side is not null and not b.same_lane
+    where b.beside and b.last_in_lane_frame is not null
 ),
 
 beside_lanes as (
@@ -116,54 +160,55 @@ near_left_lane as (
     group by b.drive_key, b.ego_key, b.actor_key, b.frame
 ),
 
-first_far as (
-    -- per stay out of the ego's lane (the frames after the same last_in_lane_frame), the first frame beside the ego
-    -- and farther than the tolerance from the lane the actor left: with the frames neither in the lane nor beside
-    -- it (last_not_beside_frame), the frames at which the actor was clearly out of the ego's lane
-    select b.drive_key, b.ego_key, b.actor_key, b.last_in_lane_frame, min(b.frame) as first_far_frame
+out_frames as (
+    -- the frames at which the actor was clearly out of the ego's lane since its last frame there: beside the ego
+    -- and farther than the tolerance from the lane it left, or neither in the lane nor beside it
+    select b.drive_key, b.ego_key, b.actor_key, b.last_in_lane_frame, b.frame
     from beside_after_in as b
     left join near_left_lane as n
         on b.drive_key = n.drive_key and b.ego_key = n.ego_key and b.actor_key = n.actor_key and b.frame = n.frame
     where n.frame is null
-    group by b.drive_key, b.ego_key, b.actor_key, b.last_in_lane_frame
+    union all
+    select drive_key, ego_key, actor_key, last_in_lane_frame, frame
+    from per_frame
+    where away and last_in_lane_frame is not null
 ),
 
-stays as (
-    -- the frames ahead in the ego's lane, where a cut-in's stay can begin (entry_frame) and end in its path
-    select drive_key, ego_key, actor_key, frame, lane_run, in_path_frame, frames_in_lane
-    from per_frame
-    where same_lane
+first_out as (
+    -- per stay out of the ego's lane (the frames after the same last_in_lane_frame), the first of them
+    select drive_key, ego_key, actor_key, last_in_lane_frame, min(frame) as first_out_frame
+    from out_frames
+    group by drive_key, ego_key, actor_key, last_in_lane_frame
 ),
 
 checked as (
+    -- every frame ahead; a pair without a frame in the ego's lane has no per_frame row (no last or next frame in it)
     select
-        a.*,
-        a.entry_frame is null or (entry.lane_run = a.lane_run and line.lane_id is not null) as ego_keeps_lane,
-        -- out of the ego's lane since the last frame in it: a frame neither in nor beside it, or beside it but
-        -- away from the lane it left
-        a.last_in_lane_frame is null or coalesce(a.last_not_beside_frame > a.last_in_lane_frame, false)
-            or coalesce(far.first_far_frame <= a.frame, false) as actor_left_ego_lane,
-        -- the actor reaches its path (in_path_frame) from the entry frame without leaving the ego's lane run or
-        -- lane, or a gap in its frames between them
-        a.entry_frame is null
-            or (path.lane_run = stay.lane_run
-                and path.frames_in_lane - stay.frames_in_lane = path.frame - stay.frame) as actor_in_ego_path
-    from per_frame as a
+        r.*,
+        r.ego_lane_id as ego_lane_now_id,
+        a.entry_frame,
+        a.last_in_lane_frame,
+        a.entry_frame is null or (entry.lane_run = r.lane_run and line.lane_id is not null) as ego_keeps_lane,
+        a.last_in_lane_frame is null or coalesce(o.first_out_frame <= r.frame, false) as actor_left_ego_lane,
+        -- the actor reaches its path (last_in_path_frame) from the entry frame without leaving the ego's lane run or
+        -- lane, or a gap in its frames between them: in the entry frame's stretch and lane run
+        a.entry_frame is null or a.entry_frame <= path.last_in_path_frame as actor_in_ego_path
+    from relations as r
     inner join drive_inputs as d
-        on a.drive_key = d.drive_key
+        on r.drive_key = d.drive_key
+    left join per_frame as a
+        on r.drive_key = a.drive_key and r.ego_key = a.ego_key and r.actor_key = a.actor_key and r.frame = a.frame
     left join ego_lanes as entry
-        on a.drive_key = entry.drive_key and a.ego_key = entry.ego_key and a.entry_frame = entry.frame
+        on r.drive_key = entry.drive_key and r.ego_key = entry.ego_key and a.entry_frame = entry.frame
     left join lane_line as line
-        on d.map_id = line.map_id and a.ego_lane_now_id = line.lane_id and entry.lane_id = line.line_lane_id
-    left join stays as stay
-        on a.drive_key = stay.drive_key and a.ego_key = stay.ego_key and a.actor_key = stay.actor_key
-        and a.entry_frame = stay.frame
-    left join stays as path
-        on stay.drive_key = path.drive_key and stay.ego_key = path.ego_key and stay.actor_key = path.actor_key
-        and stay.in_path_frame = path.frame
-    left join first_far as far
-        on a.drive_key = far.drive_key and a.ego_key = far.ego_key and a.actor_key = far.actor_key
-        and a.last_in_lane_frame = far.last_in_lane_frame
+        on d.map_id = line.map_id and r.ego_lane_id = line.lane_id and entry.lane_id = line.line_lane_id
+    left join stretch_paths as path
+        on r.drive_key = path.drive_key and r.ego_key = path.ego_key and r.actor_key = path.actor_key
+        and a.entry_stretch = path.stretch and a.entry_lane_run = path.lane_run
+    left join first_out as o
+        on r.drive_key = o.drive_key and r.ego_key = o.ego_key and r.actor_key = o.actor_key
+        and a.last_in_lane_frame = o.last_in_lane_frame
+    where r.dx_m > 0
 ),
 
 conditions as (
