@@ -31,7 +31,7 @@ TABLES = ("egos", "lane_line", "lane_neighbours", "actor_lanes", "ego_lanes", "r
           "actor_paths", "passages", "junction_frames", "crossing_pairs", "encroachments")
 
 CHILD = """
-import collections, json, sys
+import collections, json, os, sys
 import polars as pl
 from logiq_sql.core.sql import registered
 from logiq_sql.core.timing import cpu_seconds, recording
@@ -64,7 +64,7 @@ with recording() as rec:
             if dump:
                 for table in tables:
                     out = f"{dump}/{table}"
-                    __import__("os").makedirs(out, exist_ok=True)
+                    os.makedirs(out, exist_ok=True)
                     con.execute(f"copy (select * from {table}) to '{out}/{i}.parquet' (format parquet)")
             runner.release_drives()
 print(json.dumps({"stages": rec.cpu_seconds, "steps": dict(steps)}))
@@ -103,19 +103,25 @@ def differences(a: Path, b: Path) -> dict[str, str]:
     return out
 
 
+def checkout(revision: str, into: Path) -> Path:
+    """The tree of git ``revision`` extracted into the folder ``into`` (created)."""
+    into.mkdir()
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", revision], check=True, capture_output=True)
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+    return into
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    for flag, default, text in (("--base", "main", "git revision to compare with (default main)"),
+                                ("--ego", "every:10", "SUT choice, as match --ego (default every:10)")):
+        parser.add_argument(flag, default=default, help=text)
     parser.add_argument("--db", type=Path, required=True, help="an ingested DuckDB file (opened read-only)")
-    parser.add_argument("--base", default="main", help="git revision to compare with (default main)")
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--ego", default="every:10")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds, each running both versions (default 3)")
     parser.add_argument("--no-compare", action="store_true", help="skip the comparison of the tables")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="relations_ab_") as tmp:
-        base = Path(tmp) / "base"
-        base.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True, capture_output=True)
-        subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+        base = checkout(args.base, Path(tmp) / "base")
         versions = {args.base: base, "this": ROOT}
         runs: dict[str, list[dict[str, dict[str, float]]]] = {name: [] for name in versions}
         for i in range(args.rounds):
