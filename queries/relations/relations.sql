@@ -52,69 +52,16 @@ ego as (
     -- next one on either side, and the pair join below is an equi-join on (drive, frame, band) instead of on
     -- (drive, frame) alone, which paired every ego row with every actor of its frame before the range test (a
     -- cheaper join: benchmarks/README.md). The range test is the same, so the pairs are the same; the
-    -- extra metre keeps a pair at exactly the range in a neighbouring band whatever the rounding of the divisions.
-    -- What depends on the ego row alone (its heading's cosine and sine, its map, how far it is from its lane) is
-    -- computed here, once per ego row, not once per pair
+    -- extra metre keeps a pair at exactly the range in a neighbouring band whatever the rounding of the divisions
     select
-        t.drive_key,
-        t.actor_key,
-        t.row_key,
-        t.drive_id,
-        t.actor_id,
-        t.frame,
-        t.t_s,
-        t.x_m,
-        t.y_m,
-        t.heading_rad,
-        cos(t.heading_rad) as cos_heading,
-        sin(t.heading_rad) as sin_heading,
-        t.speed_mps,
-        t.accel_mps2,
-        t.length_m,
-        t.width_m,
-        d.map_id,
+        t.*,
         el.lane_id as ego_lane_id,
-        al.lane_dist_m as ego_lane_dist_m,
         el.lane_run,
         cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) + n.d as band
     from tracks as t
     inner join ego_lanes as el
         on t.drive_key = el.drive_key and t.actor_key = el.ego_key and t.frame = el.frame
-    inner join drive_inputs as d
-        on t.drive_key = d.drive_key
-    left join actor_lanes as al
-        on t.drive_key = al.drive_key and t.actor_key = al.actor_key and t.frame = al.frame
     cross join (select -1 as d union all select 0 as d union all select 1 as d) as n
-),
-
-actors as (
-    -- every row of the related kinds with its lane (actor_lanes), looked up once per row, not once per pair
-    select
-        t.drive_key,
-        t.actor_key,
-        t.row_key,
-        t.actor_id,
-        t.kind,
-        t.frame,
-        t.x_m,
-        t.y_m,
-        t.heading_rad,
-        t.speed_mps,
-        t.accel_mps2,
-        t.length_m,
-        t.width_m,
-        al.lane_id,
-        al.lane_dist_m,
-        case
-            when t.kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
-                then $relation_range_m * $relation_range_m
-            else $object_relation_range_m * $object_relation_range_m
-        end as range_sq_m2,
-        cast(floor(t.x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) as band
-    from tracks as t
-    left join actor_lanes as al
-        on t.drive_key = al.drive_key and t.actor_key = al.actor_key and t.frame = al.frame
-    where instr($relation_kinds_csv, ',' || t.kind || ',') > 0
 ),
 
 pairs as (
@@ -122,20 +69,14 @@ pairs as (
         e.drive_key,
         e.actor_key as ego_key,
         a.actor_key,
-        e.row_key as ego_row_key,
-        a.row_key as actor_row_key,
         e.drive_id,
         e.actor_id as ego_id,
         a.actor_id,
         a.kind as actor_kind,
         e.frame,
         e.t_s,
-        e.map_id,
         e.ego_lane_id,
-        e.ego_lane_dist_m,
         e.lane_run,
-        a.lane_id as actor_lane_id,
-        a.lane_dist_m as actor_lane_dist_m,
         e.speed_mps as ego_speed_mps,
         e.accel_mps2 as ego_accel_mps2,
         e.length_m as ego_length_m,
@@ -144,11 +85,22 @@ pairs as (
         a.accel_mps2 as actor_accel_mps2,
         a.length_m as actor_length_m,
         a.width_m as actor_width_m,
-        (a.x_m - e.x_m) * e.cos_heading + (a.y_m - e.y_m) * e.sin_heading as dx_m,
-        (a.y_m - e.y_m) * e.cos_heading - (a.x_m - e.x_m) * e.sin_heading as dy_m,
+        (a.x_m - e.x_m) * cos(e.heading_rad) + (a.y_m - e.y_m) * sin(e.heading_rad) as dx_m,
+        (a.y_m - e.y_m) * cos(e.heading_rad) - (a.x_m - e.x_m) * sin(e.heading_rad) as dy_m,
         atan2(sin(a.heading_rad - e.heading_rad), cos(a.heading_rad - e.heading_rad)) as rel_heading_rad
     from ego as e
-    inner join actors as a
+    inner join (
+        select
+            *,
+            case
+                when kind in ('vehicle', 'truck', 'bus', 'trailer', 'motorcycle', 'emergency_vehicle')
+                    then $relation_range_m * $relation_range_m
+                else $object_relation_range_m * $object_relation_range_m
+            end as range_sq_m2,
+            cast(floor(x_m / (greatest($relation_range_m, $object_relation_range_m) + 1.0)) as bigint) as band
+        from tracks
+        where instr($relation_kinds_csv, ',' || kind || ',') > 0
+    ) as a
         on e.drive_key = a.drive_key
         and e.frame = a.frame
         and e.band = a.band
@@ -244,53 +196,33 @@ measured as (
     from corner_offsets
 ),
 
-lane_links as (
-    -- lane_line and lane_neighbours in one table, for one join per pair: a lane beside another never continues
-    -- it (lane_neighbours leaves those out), so each (map, lane, other lane) is in at most one of them
-    select map_id, lane_id, line_lane_id as other_lane_id, true as in_line, cast(null as varchar) as side
-    from lane_line
-    union all
-    select map_id, lane_id, near_lane_id as other_lane_id, false as in_line, side
-    from lane_neighbours
-),
-
-overlapping as (
-    -- the lanes a row's centre lies inside (headed their way), for the rows inside more than one (where lanes
-    -- overlap): a row inside one lane only is inside its own lane (actor_lanes, at distance 0), so the pairs look
-    -- up only these few rows instead of track_lanes
-    select drive_key, row_key, lane_id
-    from (
-        select
-            drive_key,
-            row_key,
-            lane_id,
-            count(*) over (partition by drive_key, row_key) as lanes_inside
-        from track_lanes
-        where dist_m = 0 and abs(heading_diff_rad) < pi() / 2
-    ) as inside
-    where lanes_inside > 1
-),
-
 lane_pairs as (
     select
         m.*,
-        coalesce(link.in_line, false)
+        al.lane_id as actor_lane_id,
+        line.lane_id is not null
             -- where two lanes overlap (a lane that forks, or widens into two), a centre inside both is in either:
             -- the actor inside the ego's lane, or the ego inside the actor's, is in the same lane (headed its way,
             -- as actor_lanes asks)
-            or coalesce(m.actor_lane_dist_m = 0 and m.actor_lane_id = m.ego_lane_id, false)
-            or coalesce(m.ego_lane_dist_m = 0 and m.ego_lane_id = m.actor_lane_id, false)
             or actor_inside.lane_id is not null or ego_inside.lane_id is not null as same_lane,
-        link.side as beside_side
+        beside.side as beside_side
     from measured as m
-    left join lane_links as link
-        on m.map_id = link.map_id and m.ego_lane_id = link.lane_id and m.actor_lane_id = link.other_lane_id
-    left join overlapping as actor_inside
-        on m.drive_key = actor_inside.drive_key and m.actor_row_key = actor_inside.row_key
-        and m.ego_lane_id = actor_inside.lane_id
-    left join overlapping as ego_inside
-        on m.drive_key = ego_inside.drive_key and m.ego_row_key = ego_inside.row_key
-        and m.actor_lane_id = ego_inside.lane_id
+    inner join drive_inputs as d
+        on m.drive_key = d.drive_key
+    left join actor_lanes as al
+        on m.drive_key = al.drive_key and m.actor_key = al.actor_key and m.frame = al.frame
+    left join lane_neighbours as beside
+        on d.map_id = beside.map_id and m.ego_lane_id = beside.lane_id and al.lane_id = beside.near_lane_id
+    left join lane_line as line
+        on d.map_id = line.map_id and m.ego_lane_id = line.lane_id and al.lane_id = line.line_lane_id
+    left join track_lanes as actor_inside
+        on m.drive_key = actor_inside.drive_key and m.actor_key = actor_inside.actor_key
+        and m.frame = actor_inside.frame and m.ego_lane_id = actor_inside.lane_id and actor_inside.dist_m = 0
+        and abs(actor_inside.heading_diff_rad) < pi() / 2
+    left join track_lanes as ego_inside
+        on m.drive_key = ego_inside.drive_key and m.ego_key = ego_inside.actor_key
+        and m.frame = ego_inside.frame and al.lane_id = ego_inside.lane_id and ego_inside.dist_m = 0
+        and abs(ego_inside.heading_diff_rad) < pi() / 2
 ),
 
 lane_relation as (
