@@ -82,7 +82,7 @@ def differences(a: Path, b: Path) -> dict[str, str]:
     """Per table: 'same (N rows)' or what differs between the two dumps (EXCEPT ALL both ways)."""
     import duckdb
 
-    con = duckdb.connect()
+    con = duckdb.connect(config={"memory_limit": "2GB", "temp_directory": str(a.parent / "spill")})
     out = {}
     for table in TABLES:
         if not (a / table).exists() or not (b / table).exists():
