@@ -39,12 +39,13 @@ ENCROACHMENTS_SCHEMA = {
     "actor_occupancy_from_s_m": pl.Float64, "actor_occupancy_to_s_m": pl.Float64,
 }
 # the tables encroachments() reads and the columns it reads of each (None: every one), every table keyed by
-# drive_id; a drive without crossing pairs has no rows. Spark ships only these columns to its Python workers
+# drive_id and joined on the integer keys (drive_key, actor_key); a drive without crossing pairs has no rows. Spark
+# ships only these columns to its Python workers
 ENCROACHMENT_READS = {
     "crossing_pairs": None,
-    "passages": ("drive_id", "actor_id", "passage", "entry_frame", "exit_frame"),
-    "actor_paths": ("drive_id", "actor_id", "frame", "s_m"),
-    "tracks": ("drive_id", "actor_id", "frame", "x_m", "y_m", "heading_rad", "length_m", "width_m"),
+    "passages": ("drive_id", "actor_id", "passage", "entry_frame", "exit_frame", "drive_key", "actor_key"),
+    "actor_paths": ("drive_id", "frame", "s_m", "drive_key", "actor_key"),
+    "tracks": ("drive_id", "frame", "x_m", "y_m", "heading_rad", "length_m", "width_m", "drive_key", "actor_key"),
 }
 MIN_AREA_M2 = 0.01  # paths that only touch share no area
 PATH_STEP_M = 0.5  # a path's vertices: the mean position of its rows over each 0.5 m of s_m
@@ -71,18 +72,19 @@ def _paths(engine) -> tuple[pl.DataFrame, np.ndarray, np.ndarray, pl.DataFrame]:
     their distance along the line (``along``, shifted so that it grows across all lines) and their s_m."""
     points = engine.frame("""
         with wanted as (
-            select drive_id, ego_id as actor_id, ego_passage as passage from crossing_pairs
+            select drive_key, ego_key as actor_key, ego_passage as passage from crossing_pairs
             union
-            select drive_id, actor_id, actor_passage as passage from crossing_pairs
+            select drive_key, actor_key, actor_passage as passage from crossing_pairs
         )
         select p.drive_id, p.actor_id, p.passage, a.s_m, t.x_m, t.y_m, t.heading_rad, t.length_m, t.width_m
         from passages as p
         inner join wanted as w
-            on p.drive_id = w.drive_id and p.actor_id = w.actor_id and p.passage = w.passage
+            on p.drive_key = w.drive_key and p.actor_key = w.actor_key and p.passage = w.passage
         inner join tracks as t
-            on p.drive_id = t.drive_id and p.actor_id = t.actor_id and t.frame between p.entry_frame and p.exit_frame
+            on p.drive_key = t.drive_key and p.actor_key = t.actor_key
+            and t.frame between p.entry_frame and p.exit_frame
         inner join actor_paths as a
-            on t.drive_id = a.drive_id and t.actor_id = a.actor_id and t.frame = a.frame
+            on t.drive_key = a.drive_key and t.actor_key = a.actor_key and t.frame = a.frame
         order by p.drive_id, p.actor_id, p.passage, t.frame
     """)
     passage_key = pl.struct("drive_id", "actor_id", "passage").rank("dense").cast(pl.Int64) - 1

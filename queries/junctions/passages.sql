@@ -26,17 +26,6 @@
 --   turn              turn_from_map where the map has it, else turn_from_heading; NULL when neither is known
 with
 
-path as (
-    select
-        *,
-        (coalesce(lag(s_m) over w, s_m) + s_m) / 2 as boundary_before_m,
-        (s_m + coalesce(lead(s_m) over w, s_m)) / 2 as boundary_after_m,
-        lag(heading_rad) over w as heading_before_rad,
-        lead(heading_rad) over w as heading_after_rad
-    from actor_paths
-    window w as (partition by drive_key, actor_key order by frame)
-),
-
 inside as (
     select
         tl.drive_key,
@@ -52,6 +41,21 @@ inside as (
         on d.map_id = l.map_id and tl.lane_id = l.lane_id
     where tl.dist_m = 0 and l.junction_id is not null
     group by tl.drive_key, tl.actor_key, tl.frame
+),
+
+path as (
+    -- the rows of the actors that are ever inside a junction: the windows run over each actor's rows alone, so
+    -- leaving out the others changes no row of theirs
+    select
+        p.*,
+        (coalesce(lag(p.s_m) over w, p.s_m) + p.s_m) / 2 as boundary_before_m,
+        (p.s_m + coalesce(lead(p.s_m) over w, p.s_m)) / 2 as boundary_after_m,
+        lag(p.heading_rad) over w as heading_before_rad,
+        lead(p.heading_rad) over w as heading_after_rad
+    from actor_paths as p
+    inner join (select distinct drive_key, actor_key from inside) as i
+        on p.drive_key = i.drive_key and p.actor_key = i.actor_key
+    window w as (partition by p.drive_key, p.actor_key order by p.frame)
 ),
 
 stays as (
