@@ -19,12 +19,10 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.versions import ROOT, checkout, run_child
 
 # what the stages write: the relation steps, then (junction scenarios) the junction steps and encroachments
 TABLES = ("egos", "lane_line", "lane_neighbours", "actor_lanes", "ego_lanes", "relations",
@@ -72,10 +70,7 @@ print(json.dumps({"stages": rec.cpu_seconds, "steps": dict(steps)}))
 
 
 def run(code: Path, db: Path, ego: str, dump: str) -> dict[str, dict[str, float]]:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego, dump, json.dumps(TABLES)], check=True,
-                         capture_output=True, text=True, cwd=code,
-                         env={"PYTHONPATH": str(code), "PATH": str(Path(sys.executable).parent)})
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return run_child(code, CHILD, str(db), ego, dump, json.dumps(TABLES))
 
 
 def differences(a: Path, b: Path) -> dict[str, str]:
@@ -101,14 +96,6 @@ def differences(a: Path, b: Path) -> dict[str, str]:
         out[table] = (f"same ({n:,} rows)" if ab == ba == 0 else f"DIFFERENT: {ab} rows only in base, {ba} only in this"
                       ) + (f"; columns in one only: {only}" if only else "")
     return out
-
-
-def checkout(revision: str, into: Path) -> Path:
-    """The tree of git ``revision`` extracted into the folder ``into`` (created)."""
-    into.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", revision], check=True, capture_output=True)
-    subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
-    return into
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -25,14 +25,11 @@ import argparse
 import json
 import shutil
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 from benchmarks.tiers import DURATION_CHANGE, PARAM_CHANGE
-
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.versions import ROOT, checkout, run_child
 
 CHILD = """
 import json, resource, sys, time
@@ -60,9 +57,7 @@ print(json.dumps(out))
 
 
 def run(code: Path, db: Path, ego: str, plan: list[tuple[str, bool, dict[str, str]]]) -> dict[str, float]:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(db), ego, json.dumps(plan)], check=True, capture_output=True, text=True,
-                         env={"PYTHONPATH": str(code), "PATH": str(Path(sys.executable).parent)}, cwd=code)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return run_child(code, CHILD, str(db), ego, json.dumps(plan))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -86,10 +81,7 @@ def main(argv: list[str] | None = None) -> None:
     plan = ([] if args.no_force else [("", True, {})]) + [(prefix, False, o) for prefix, o in changes]
     labels = {"": "match --force", **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
     with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
-        base = Path(tmp) / "base"
-        base.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True, capture_output=True)
-        subprocess.run(["tar", "-x", "-C", str(base)], input=archive.stdout, check=True)
+        base = checkout(args.base, Path(tmp) / "base")
         versions = {args.base: base, "this": ROOT}
         times: dict[str, list[dict[str, float]]] = {name: [] for name in versions}
         for i in range(args.rounds):
