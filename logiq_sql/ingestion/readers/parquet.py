@@ -150,9 +150,10 @@ def read_drives(lazy: pl.LazyFrame, drives_meta: dict[str, dict], maps: dict[str
     for chunk in _chunks(lazy, sizes):
         in_chunk = chunk.group_by("drive_id", maintain_order=True).len()
         # the drives of a chunk are checked and cast a million rows at a time (memory stays that of a chunk)
-        runs = by_drive(chunk, in_chunk)
-        for part_ids in batches(in_chunk.iter_rows(), SPLIT_ROWS):
-            part = (chunk if len(part_ids) == in_chunk.height
+        split = batches(in_chunk.iter_rows(), SPLIT_ROWS)
+        runs = by_drive(chunk, in_chunk) if len(split) > 1 else None  # a chunk of one part is not cut
+        for part_ids in split:
+            part = (chunk if len(split) == 1
                     else pl.concat([runs[d] for d in part_ids]) if runs is not None
                     else chunk.filter(pl.col("drive_id").is_in(part_ids)))
             drives = _drives_at_once(part, drives_meta, parts, tracks_where, drives_where, source_format)
