@@ -154,6 +154,31 @@ def export_parquet(con: duckdb.DuckDBPyConnection, folder: str | Path) -> Path:
     return dataset.write(con, folder, "part")
 
 
+LONG_MAX = 2**63 - 1
+
+
+def checkpoint(df):
+    """``df`` computed once, its lineage cut (``localCheckpoint``), with a size estimate that stays bounded.
+
+    A checkpoint carries its plan's size estimate, and Spark's size-only estimator multiplies the estimates of a
+    join's two sides. Carried from step to step, the estimate's digits grew with every step that joins earlier
+    ones: at the SUMO junction, junction_frames' reached 4,040 digits, and a later step's overflowed the driver's
+    heap. An estimate past a long (far past every broadcast threshold, so no plan changes) is replaced by Spark's
+    default size for a table it knows nothing about, ``spark.sql.defaultSizeInBytes``."""
+    from pyspark.sql import DataFrame
+
+    kept = df.localCheckpoint(eager=True)
+    try:
+        fits = kept._jdf.queryExecution().optimizedPlan().stats().sizeInBytes() <= LONG_MAX
+    except ValueError:  # more digits than Python converts: far past a long
+        fits = False
+    if fits:
+        return kept
+    jdf = kept.sparkSession._jsparkSession.internalCreateDataFrame(
+        kept._jdf.queryExecution().toRdd(), kept._jdf.schema(), False)
+    return DataFrame(jdf, kept.sparkSession)
+
+
 class SparkEngine(Engine):
     """Steps run with ``spark.sql(text, args=...)`` over the canonical tables as Parquet; each step's result is
     checkpointed (computed once, lineage cut) and kept as a temp view of the step's name."""
@@ -187,7 +212,7 @@ class SparkEngine(Engine):
     def keep_frame(self, table: str, df) -> None:
         """Keep the Spark DataFrame ``df`` as the step ``table``: computed once, a temp view of that name."""
         self.describe(f"step {table}")
-        self._view(table, df.localCheckpoint(eager=True))  # later steps read it many times; plans stay short
+        self._view(table, checkpoint(df))  # later steps read it many times; plans stay short
 
     def _view(self, table: str, df) -> None:
         """``df`` as the temp view ``table``, in place of the step of that name before it (whose rows are

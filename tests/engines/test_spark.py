@@ -258,3 +258,17 @@ def test_rendered_spark_sql_binds_its_parameters_and_parses(spark):
         assert all(f"-- :{name} = " in printed for name in args)
     cyclist = render("cyclist_close_to_moving_sut", overrides={"max_distance_from_cyclist": "6m"}, engine="spark")
     assert "-- :max_distance_from_cyclist_m = 6.0\n" in cyclist
+
+
+def test_a_step_s_size_estimate_stays_bounded_however_many_steps_join_before_it(spark):
+    """Spark's size-only estimator multiplies a join's two sides, and a checkpoint carries its plan's estimate: a
+    step that joins the step before it with itself doubled the estimate's digits each time, until the driver's heap
+    ran out (a cluster run in CI). spark_engine.checkpoint keeps every estimate within a long."""
+    from logiq_sql.engines.spark_engine import LONG_MAX, checkpoint
+
+    step = checkpoint(spark.range(50).selectExpr("id as k", "id as v"))
+    for _ in range(16):  # carried, the estimate would have some 19 * 2**16 digits
+        step.createOrReplaceTempView("_previous_step")
+        step = checkpoint(spark.sql("select a.k, a.v + b.v as v from _previous_step a join _previous_step b using (k)"))
+        assert step._jdf.queryExecution().optimizedPlan().stats().sizeInBytes() <= LONG_MAX
+    assert sorted(step.collect()) == [(k, k * 2**16) for k in range(50)]
