@@ -16,6 +16,9 @@ for that re-match (``param_cpu_s``, ``param_wall_s``; same matches checked too).
 ``--tiers-changes``: instead, the re-matches benchmarks/tiers.py times (its PARAM_CHANGE, then back to the
 defaults, its DURATION_CHANGE, then back), each timed, on the file as it is (``--no-force``: no ``match --force``
 first; use a file whose step cache holds the default run, e.g. a tier file after its benchmark).
+``--prime``: before the rounds each version matches a copy of the file once with the defaults (not timed), so that
+its step cache holds the default run in that version's own layout (a version whose cache is a file beside the
+file, ``<file>.step_cache``, and one that keeps it inside compare fairly); each round starts from a copy of that.
 "Same results" compares matches, match_phases and kpis (a digest of their rows, in order) after each re-match.
 """
 
@@ -30,6 +33,7 @@ from pathlib import Path
 
 from benchmarks.tiers import DURATION_CHANGE, PARAM_CHANGE
 from benchmarks.versions import ROOT, checkout, run_child
+from logiq_sql.storage.step_cache import path_of
 
 CHILD = """
 import json, resource, sys, time
@@ -60,6 +64,15 @@ def run(code: Path, db: Path, ego: str, plan: list[tuple[str, bool, dict[str, st
     return run_child(code, CHILD, str(db), ego, json.dumps(plan))
 
 
+def _copy(db: Path, to: Path) -> Path:
+    """The file ``db`` copied to ``to``, with its step cache file when it has one beside it."""
+    shutil.copy(db, to)
+    path_of(to).unlink(missing_ok=True)
+    if path_of(db).is_file():
+        shutil.copy(path_of(db), path_of(to))
+    return to
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--db", type=Path, required=True, help="an ingested DuckDB file (copied, never changed)")
@@ -71,6 +84,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tiers-changes", action="store_true",
                         help="time the re-matches of benchmarks/tiers.py (one parameter changed and back, twice)")
     parser.add_argument("--no-force", action="store_true", help="no match --force first")
+    parser.add_argument("--prime", action="store_true",
+                        help="each version first matches its own copy with the defaults, untimed; rounds start there")
     args = parser.parse_args(argv)
     if args.set and args.tiers_changes:
         parser.error("--set or --tiers-changes, not both")
@@ -84,10 +99,13 @@ def main(argv: list[str] | None = None) -> None:
         base = checkout(args.base, Path(tmp) / "base")
         versions = {args.base: base, "this": ROOT}
         times: dict[str, list[dict[str, float]]] = {name: [] for name in versions}
+        start = {name: args.db for name in versions}
+        for name, code in versions.items() if args.prime else ():
+            start[name] = _copy(args.db, Path(tmp) / f"primed_{name.replace('/', '_')}.duckdb")
+            print(f"primed {name}: {run(code, start[name], args.ego, [('', False, {})])}", flush=True)
         for i in range(args.rounds):
             for name, code in versions.items():
-                copy = Path(tmp) / f"{name.replace('/', '_')}.duckdb"
-                shutil.copy(args.db, copy)
+                copy = _copy(start[name], Path(tmp) / f"{name.replace('/', '_')}.duckdb")
                 times[name].append(run(code, copy, args.ego, plan))
                 print(f"round {i + 1} {name}: {times[name][-1]}", flush=True)
     for prefix in (p for p, _, _ in plan):

@@ -5,10 +5,11 @@
     python -m benchmarks.rematch_parts --db COPY.duckdb --change back      # every parameter at its default
     python -m benchmarks.rematch_parts --db COPY.duckdb --change force     # match --force
 
-The file is re-matched (pass a copy). Parts are the functions of the run wrapped with a timer: the file's working
-copy and its publishing, selecting a batch's drives, each step the engine computes (by query file), the step
-cache's look-ups and writes, storing a batch's results. Parts nest (a scenario's run holds its steps), so they do
-not add up to the whole; a part called once per batch is summed over the batches.
+The file is re-matched (pass a copy, with its step cache `<file>.step_cache` copied beside it). Parts are the
+functions of the run wrapped with a timer: the file's working copy and its publishing, selecting a batch's drives,
+each step the engine computes (by query file), the step cache's look-ups and writes, storing a batch's results. Parts
+nest (a scenario's run holds its steps), so they do not add up to the whole; a part called once per batch is summed
+over the batches.
 """
 
 from __future__ import annotations

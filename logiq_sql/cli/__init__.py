@@ -224,14 +224,12 @@ def cmd_new_scenario(args: argparse.Namespace) -> int:
 
 def cmd_cache(args: argparse.Namespace) -> int:
     from logiq_sql.storage import step_cache
-    from logiq_sql.storage.db import open_for_read, open_for_write
 
     db = _existing_db(args)
-    if args.clear:
-        with open_for_write(db) as con:
+    with step_cache.opened(db, args.wait) as con:  # a run writing the file holds its cache open
+        if args.clear:
             step_cache.clear(con)
-    with open_for_read(db) as con:
-        print(f"step cache of {db}: {step_cache.describe(step_cache.size(con))}")
+        print(f"step cache of {db} ({step_cache.path_of(db)}): {step_cache.describe(step_cache.size(con))}")
     return EXIT_OK
 
 
@@ -410,11 +408,13 @@ def add_info(sub) -> None:
 
 
 def add_cache(sub) -> None:
-    p = command(sub, "cache", cmd_cache, "the size of the step cache in a DuckDB file, or --clear it",
-                 "match keeps the rows of its steps in the file and reads them back when a later run needs the same "
-                 "step (same SQL, values and drive rows): docs/operations.md, 'The step cache'. Re-ingesting a drive "
-                 "drops its entries; --clear drops all.")
+    p = command(sub, "cache", cmd_cache, "the size of the step cache of a DuckDB file, or --clear it",
+                 "match keeps the rows of its steps in FILE.step_cache beside the file and reads them back when a "
+                 "later run needs the same step (same SQL, values and drive rows): docs/operations.md, 'The step "
+                 "cache'. Re-ingesting a drive drops its entries; --clear drops all. A run writing the file holds "
+                 "the cache: --wait waits for it.")
     add_db(p)
+    add_wait(p)
     p.add_argument("--clear", action="store_true", help="drop every entry of the cache")
 
 

@@ -405,18 +405,21 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
     ids = pl.DataFrame({"drive_id": [d.drive_id for d, *_ in accepted]})
     keys = drive_keys(con, ids["drive_id"].to_list())
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
+    map_ids = pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String})
+    # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
+    stale = ("select drive_id from _drive_ids union all select drive_id from drive_inputs "
+             "where map_id in (select map_id from _map_ids)")
+    with registered(con, "_drive_ids", ids), registered(con, "_map_ids", map_ids):
+        step_cache.drop_drives(con, stale)  # the cache's own file: before the transaction, which writes this one
     con.execute("begin transaction")
     try:
-        with (registered(con, "_drive_ids", ids),
-              registered(con, "_map_ids", pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String}))):
+        with registered(con, "_drive_ids", ids), registered(con, "_map_ids", map_ids):
             for table in schema.DRIVE_TABLE_NAMES:
                 con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
             # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
             con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
             _drop_outputs(con, ids["drive_id"].to_list())
-            # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
-            step_cache.set_versions(con, "select drive_id from _drive_ids union all select drive_id from drive_inputs "
-                                         "where map_id in (select map_id from _map_ids)")
+            step_cache.set_versions(con, stale)
             for table in schema.MAP_TABLE_NAMES:
                 con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive paid DuckDB's per-statement cost each time)
@@ -532,12 +535,14 @@ def _reject(con: duckdb.DuckDBPyConnection, drive: DriveData, reason: str) -> No
     """Record a drive as rejected; rows an earlier ingest left for the same drive_id go, so nothing stale stays.
     One transaction: a run killed here leaves the drive as it was before, never without its drive_inputs row."""
     rows = drive.rows_read or drive.tracks.height
+    rejected = pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String})
+    with registered(con, "_rejected", rejected):
+        step_cache.drop_drives(con, "select drive_id from _rejected")  # its own file: outside the transaction
     con.execute("begin transaction")
     try:
         for table in (*schema.DRIVE_TABLE_NAMES, "drive_scenarios"):
             con.execute(f"delete from {table} where drive_id = $d", {"d": drive.drive_id})
         _drop_outputs(con, [drive.drive_id])
-        rejected = pl.DataFrame({"drive_id": [drive.drive_id]}, schema={"drive_id": pl.String})
         with registered(con, "_rejected", rejected):
             step_cache.set_versions(con, "select drive_id from _rejected")
         tables.insert(con, "drive_inputs", pl.DataFrame([{

@@ -14,7 +14,7 @@ from pathlib import Path
 import duckdb
 
 from logiq_sql.core.errors import DiskFullError, FileBusyError, InputError, LogiqError
-from logiq_sql.storage import locking, tables
+from logiq_sql.storage import locking, step_cache, tables
 
 MEMORY_LIMIT_ENV = "LOGIQ_SQL_MEMORY_LIMIT"
 # DuckDB spills to <file>.tmp beyond this instead of growing. With ingest's half of it
@@ -139,6 +139,8 @@ class Writer:
     A run killed before that leaves the published file as it was; its copy, consistent at its last committed
     transaction, is taken up by the next run when the file has not changed since (so committed batches are not
     redone), else discarded. A full disk stops the run, removes its copy and leaves the file as it was.
+    The step cache is not in the copy: it is a file of its own beside the file, which only the lock's holder opens,
+    attached to the connection as ``cache`` and written in place (logiq_sql/storage/step_cache.py).
     """
 
     def __init__(self, path: str | Path, wait_s: float = 0.0, progress: Callable[[str], None] | None = None):
@@ -150,6 +152,7 @@ class Writer:
         try:
             self._prepare(progress)
             self.con = connect(self.work)
+            step_cache.attach(self.con, self.path)
         except BaseException as exc:
             self._stop(exc)
             raise

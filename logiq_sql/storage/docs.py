@@ -6,8 +6,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from logiq_sql.core.formats import formats_markdown
-from logiq_sql.core.schema import duckdb_type
-from logiq_sql.storage.tables import DRIVES_DOC, TABLES
+from logiq_sql.core.schema import Table, duckdb_type
+from logiq_sql.storage.tables import DRIVES_DOC, STEP_CACHE, TABLES
+
+
+def _described(table: Table) -> list[str]:
+    """A table's description and its columns' table, as markdown lines."""
+    return [table.doc, "", "| column | type | meaning |", "|---|---|---|",
+            *[f"| `{c.name}` | {duckdb_type(c.dtype).lower()} | {c.doc} |" for c in table.columns], ""]
 
 
 def docs_markdown() -> str:
@@ -15,10 +21,8 @@ def docs_markdown() -> str:
     out = ["# Tables in the logiq_sql DuckDB file", "",
            "Generated from `logiq_sql/core/schema.py` and `logiq_sql/storage/tables.py` (`make docs`). Every column also carries "
            "this text as a DuckDB comment: `select * from duckdb_columns() where comment is not null`.", ""]
-    for table in (*TABLES,):
-        out += [f"## `{table.name}`", "", table.doc, "", "| column | type | meaning |", "|---|---|---|"]
-        out += [f"| `{c.name}` | {duckdb_type(c.dtype).lower()} | {c.doc} |" for c in table.columns]
-        out.append("")
+    for table in TABLES:
+        out += [f"## `{table.name}`", "", *_described(table)]
     out += ["## `kpis`", "",
             "One row per match: `match_id`, `scenario`, then every KPI and sampled coverage value of the scenarios "
             "in `scenarios/`, in the spec's units (the suffix); NULL where a scenario does not record it or the "
@@ -48,7 +52,13 @@ def docs_markdown() -> str:
             "area of every ego-actor pair whose paths through a junction cross, as WKT with the stretch of each "
             "path along which its box overlaps the area (`logiq_sql/matching/encroachment.py`). Definitions: docs/semantics.md, unprotected_left_turn_with_yield_and_"
             "traffic_light.", "",
-            "## `step_cache_<key>`", "",
+            "## The step cache: `step_cache` and `step_cache_<key>`, in `<file>.step_cache`", "",
+            "The step cache is a DuckDB file of its own beside the file (`drives.duckdb.step_cache` for "
+            "`drives.duckdb`), which only the run holding the file's writer lock opens: a run's working copy of the "
+            "file leaves it out. To read it, stop writing runs and `attach 'drives.duckdb.step_cache' as cache "
+            "(read_only)`; `logiq-sql cache --db FILE` gives its size.", "",
+            f"### `{STEP_CACHE.name}`", "", *_described(STEP_CACHE),
+            "### `step_cache_<key>`", "",
             "The rows of one step of a match run, for every drive whose `step_cache` entry names the table: the "
             "columns of the step's query (`queries/...`, named in `step_cache.step`), a `drive_id` among them, or, "
             "for a step whose rows carry only `drive_key`, `cached_drive_id` beside them. "

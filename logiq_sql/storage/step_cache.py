@@ -1,8 +1,15 @@
-"""The step cache: every step's output kept in the DuckDB file, per drive, and read back instead of recomputed.
+"""The step cache: every step's output kept per drive, and read back instead of recomputed.
+
+The cache is a DuckDB file of its own beside the file it serves (``<file>.step_cache``), attached to the writer's
+connection as the catalog ``cache``. Only the process that holds the file's writer lock opens it (``db.Writer``,
+``logiq-sql cache``), so it is written in place: a run's working copy of the file (db.Writer) leaves it out, where
+it had copied it, most of the file's size, on every run. Nothing in it needs the file's publish protocol: an entry
+holds for one ingest version of a drive, a fresh random id per ingest, so an entry written by a run that was never
+published can only be read for the rows it was computed from.
 
 A step's key is a digest of what its rows depend on: the query text it runs, the values it binds, the keys of the
 step tables it reads (so a changed step changes every step downstream of it), the DuckDB version and CACHE_FORMAT.
-What it reads of the canonical tables is the drive's: the index (``step_cache``) records, per scenario, step and
+What it reads of the canonical tables is the drive's: the index (``cache.step_cache``) records, per scenario, step and
 drive, the key and the drive's ``ingest_versions.ingest_version`` it was computed from. A batch of drives reads a
 step from the cache only when every drive of the batch has an entry of that key for its current ingest version;
 else the step runs and its rows replace the batch's entry. The rows of one key live in ``step_cache_<key>``. A
@@ -17,6 +24,7 @@ cache, datasets attached as views) are never cached. The Spark and Polars engine
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import inspect
 import json
@@ -24,16 +32,22 @@ import os
 import sys
 import time
 import uuid
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import duckdb
 
 from logiq_sql.core.errors import LogiqError
-from logiq_sql.storage import tables
-from logiq_sql.storage.db import stored_schema
+from logiq_sql.core.sql import sql_literal
+from logiq_sql.storage import locking, tables
 
 CACHE_FORMAT = "1"  # bump when what a key covers changes
-TABLE_PREFIX = "step_cache_"
+TABLE_PREFIX = tables.STEP_CACHE_PREFIX
+SUFFIX = ".step_cache"  # the cache's own DuckDB file: <file>.step_cache
+CATALOG = "cache"  # the name it is attached under
+STORED = f"{CATALOG}.main"
+INDEX = f"{STORED}.{tables.STEP_CACHE.name}"
 # the drive of each row of a step that carries only drive_key, added when its rows are kept
 DRIVE_ID_KEPT = "cached_drive_id"
 # every step is kept until this many cells were written in the run: a write has a fixed cost, so the cost per cell
@@ -67,15 +81,46 @@ def mode() -> str:
     return value
 
 
+def path_of(db_path: str | Path) -> Path:
+    """The step cache file of the DuckDB file ``db_path``."""
+    return Path(f"{db_path}{SUFFIX}")
+
+
+def attach(con: duckdb.DuckDBPyConnection, db_path: str | Path) -> None:
+    """Attach the step cache of the file ``db_path`` to ``con`` as ``cache`` (created on first use), for the process
+    holding that file's writer lock: DuckDB lets one process at a time open a file for writing."""
+    con.execute(f"attach if not exists {sql_literal(str(path_of(db_path)))} as {CATALOG}")
+    tables.create_table(con, tables.STEP_CACHE, catalog=CATALOG)
+
+
+def attached(con: duckdb.DuckDBPyConnection) -> bool:
+    """Whether ``con`` has the step cache (a writer's connection to a file; not a reader's, nor an in-memory one)."""
+    return con.execute("select count(*) from duckdb_databases() where database_name = $c",
+                       {"c": CATALOG}).fetchall()[0][0] > 0
+
+
+@contextlib.contextmanager
+def opened(db_path: str | Path, wait_s: float = 0.0,
+           progress: Callable[[str], None] | None = None) -> Iterator[duckdb.DuckDBPyConnection]:
+    """A connection with the step cache of the file ``db_path`` attached, under the file's writer lock (a run that
+    writes the file holds its cache open): for ``logiq-sql cache``."""
+    lock = locking.acquire(db_path, wait_s, progress)
+    try:
+        with duckdb.connect() as con:
+            attach(con, db_path)
+            yield con
+    finally:
+        lock.release()
+
+
 def new_version() -> str:
     return uuid.uuid4().hex
 
 
 def set_versions(con: duckdb.DuckDBPyConnection, drives: str) -> None:
-    """Give every drive of the query ``drives`` (a select of drive_id) a new ingest version and drop its cache
-    entries; called by ingest inside its transaction."""
+    """Give every drive of the query ``drives`` (a select of drive_id) a new ingest version; called by ingest inside
+    its transaction, after ``drop_drives`` of the same drives outside it (a DuckDB transaction writes one file)."""
     con.execute(f"create or replace temp table _versioned as select distinct drive_id from ({drives})")
-    drop_drives(con, "select drive_id from _versioned")
     con.execute("delete from ingest_versions where drive_id in (select drive_id from _versioned)")
     con.execute("insert into ingest_versions select drive_id, $v || '-' || drive_id from _versioned",
                 {"v": new_version()})
@@ -84,51 +129,53 @@ def set_versions(con: duckdb.DuckDBPyConnection, drives: str) -> None:
 
 def cache_tables(con: duckdb.DuckDBPyConnection) -> list[str]:
     return [r[0] for r in con.execute(
-        "select table_name from duckdb_tables() where not temporary and starts_with(table_name, $p) "
-        "and database_name = current_database() order by table_name", {"p": TABLE_PREFIX}).fetchall()]
+        "select table_name from duckdb_tables() where starts_with(table_name, $p) and database_name = $c "
+        "order by table_name", {"p": TABLE_PREFIX, "c": CATALOG}).fetchall()]
 
 
 def drive_column(con: duckdb.DuckDBPyConnection, table: str) -> str:
     """The column that names the drive of each row of the cache table ``table``."""
     (kept,) = con.execute("select count(*) from duckdb_columns() where table_name = $t and column_name = $c "
-                          "and database_name = current_database()", {"t": table, "c": DRIVE_ID_KEPT}).fetchall()[0]
+                          "and database_name = $d", {"t": table, "c": DRIVE_ID_KEPT, "d": CATALOG}).fetchall()[0]
     return DRIVE_ID_KEPT if kept else "drive_id"
 
 
 def drop_drives(con: duckdb.DuckDBPyConnection, drives: str) -> None:
-    """Drop every cache entry of the drives of the query ``drives`` (a select of drive_id)."""
-    stored = stored_schema(con)
+    """Drop every cache entry of the drives of the query ``drives`` (a select of drive_id); nothing to do on a
+    connection without the cache."""
+    if not attached(con):
+        return
     for table in cache_tables(con):
-        con.execute(f"delete from {stored}.{table} where {drive_column(con, table)} in ({drives})")
-    con.execute(f"delete from step_cache where drive_id in ({drives})")
-    _drop_unreferenced(con, stored)
+        con.execute(f"delete from {STORED}.{table} where {drive_column(con, table)} in ({drives})")
+    con.execute(f"delete from {INDEX} where drive_id in ({drives})")
+    _drop_unreferenced(con)
 
 
 def clear(con: duckdb.DuckDBPyConnection) -> None:
-    stored = stored_schema(con)
     for table in cache_tables(con):
-        con.execute(f"drop table {stored}.{table}")
-    con.execute("delete from step_cache")
+        con.execute(f"drop table {STORED}.{table}")
+    con.execute(f"delete from {INDEX}")
 
 
-def _drop_unreferenced(con: duckdb.DuckDBPyConnection, stored: str) -> None:
-    used = {r[0] for r in con.execute("select distinct table_name from step_cache").fetchall()}
+def _drop_unreferenced(con: duckdb.DuckDBPyConnection) -> None:
+    used = {r[0] for r in con.execute(f"select distinct table_name from {INDEX}").fetchall()}
     for table in cache_tables(con):
         if table not in used:
-            con.execute(f"drop table {stored}.{table}")
+            con.execute(f"drop table {STORED}.{table}")
 
 
 def size(con: duckdb.DuckDBPyConnection, storage: bool = True) -> dict[str, int]:
     """The cache's tables, rows, index entries and bytes (DuckDB's blocks of those tables; 0 without ``storage``,
     which reads every column's segments)."""
     tables = cache_tables(con)
-    rows = sum(con.execute(f"select count(*) from {stored_schema(con)}.{t}").fetchall()[0][0] for t in tables)
+    rows = sum(con.execute(f"select count(*) from {STORED}.{t}").fetchall()[0][0] for t in tables)
     blocks: set[int] = set()  # small tables share blocks
     for t in tables if storage else ():
-        blocks |= {r[0] for r in con.execute(f"select distinct block_id from pragma_storage_info('{t}') "
+        blocks |= {r[0] for r in con.execute(f"select distinct block_id from pragma_storage_info('{STORED}.{t}') "
                                              "where block_id is not null").fetchall()}
-    (block_size,) = con.execute("select block_size from pragma_database_size()").fetchall()[0]
-    (entries,) = con.execute("select count(*) from step_cache").fetchall()[0]
+    (block_size,) = con.execute("select block_size from pragma_database_size() where database_name = $c",
+                                {"c": CATALOG}).fetchall()[0]
+    (entries,) = con.execute(f"select count(*) from {INDEX}").fetchall()[0]
     return {"tables": len(tables), "rows": rows, "entries": entries, "bytes": len(blocks) * block_size}
 
 
@@ -176,11 +223,11 @@ class StepCache:
         self._usable = n > 0 and missing == 0
         self._batch = tuple(r[0] for r in self.con.execute("select drive_id from _batch_versions "
                                                              "order by drive_id").fetchall())
-        self.con.execute("create or replace temp table _batch_entries as select * from step_cache "
+        self.con.execute(f"create or replace temp table _batch_entries as select * from {INDEX} "
                          "where drive_id in (select drive_id from _batch_versions)")
         # (entries of other drives do not change while the batch runs: match writes only the batch's)
         self._outside = {r[0] for r in self.con.execute(
-            "select distinct step_key from step_cache where drive_id not in (select drive_id from _batch_versions)"
+            f"select distinct step_key from {INDEX} where drive_id not in (select drive_id from _batch_versions)"
         ).fetchall()}
 
     @property
@@ -221,7 +268,7 @@ class StepCache:
         # a table holds only the rows of the drives whose entries name it: when those are all of the batch, no
         # row needs filtering out
         where = f" where {column} in (select drive_id from _batch_versions)" if key in self._outside else ""
-        self.con.execute(f"create temp view {table} as select {columns} from {stored_schema(self.con)}.{data}{where}")
+        self.con.execute(f"create temp view {table} as select {columns} from {STORED}.{data}{where}")
         return True
 
     def record(self, owners: tuple[str, ...], step: str, table: str, key: str, computed: bool,
@@ -234,7 +281,7 @@ class StepCache:
         if not (self._usable and owners):
             self.uncached += 1
             return
-        con, stored, data = self.con, stored_schema(self.con), f"{TABLE_PREFIX}{key}"
+        con, data = self.con, f"{TABLE_PREFIX}{key}"
         if computed:
             columns = {r[0] for r in con.execute(
                 "select column_name from duckdb_columns() where table_name = $t and database_name = 'temp'",
@@ -263,8 +310,8 @@ class StepCache:
             # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
             # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
             if data not in cache_tables(con):
-                con.execute(f"create table {stored}.{data} as select * from {rows_of} limit 0")
-                tables.comment_derived(con, f"{stored}.{data}", data,
+                con.execute(f"create table {STORED}.{data} as select * from {rows_of} limit 0")
+                tables.comment_derived(con, f"{STORED}.{data}", data,
                                    f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
                                    "name this table (logiq_sql/storage/step_cache.py).", {},
                                    "As the step's query returns it (step_cache.step names the query; its header "
@@ -284,17 +331,17 @@ class StepCache:
         """In one transaction: the batch's rows (``rows_of``, a table or subquery) written to ``data`` (``write``),
         the entries of the owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry
         refers to any more removed."""
-        con, stored = self.con, stored_schema(self.con)
+        con = self.con
         con.execute("begin transaction")
         try:
             if write:
-                con.execute(f"delete from {stored}.{data} where {self._drive_column(data)} in "
+                con.execute(f"delete from {STORED}.{data} where {self._drive_column(data)} in "
                             "(select drive_id from _batch_versions)")
-                con.execute(f"insert into {stored}.{data} select * from {rows_of}")
+                con.execute(f"insert into {STORED}.{data} select * from {rows_of}")
             con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
                         "from _batch_entries where step = $s and step_key <> $k and scenario in (select scenario "
                         "from _owners)", {"s": step, "k": key})
-            for index in ("step_cache", "_batch_entries"):  # the batch's entries are all in both
+            for index in (INDEX, "_batch_entries"):  # the batch's entries are all in both
                 con.execute(f"delete from {index} where step = $s and scenario in (select scenario from _owners) "
                             "and drive_id in (select drive_id from _batch_versions)", {"s": step})
                 con.execute(f"insert into {index} select o.scenario, $s, b.drive_id, $k, $t, b.ingest_version "
@@ -303,12 +350,12 @@ class StepCache:
                 # the drives whose rows of the old key no entry refers to any more (the replaced entries are the
                 # batch's, so only the batch's entries can still refer to those drives' rows)
                 column = self._drive_column(old_table)
-                con.execute(f"delete from {stored}.{old_table} where {column} in (select drive_id from _replaced "
+                con.execute(f"delete from {STORED}.{old_table} where {column} in (select drive_id from _replaced "
                             f"where step_key = $o) and {column} not in (select drive_id from _batch_entries where "
                             "step_key = $o)", {"o": old})
                 if old not in self._outside and not con.execute(
                         "select count(*) from _batch_entries where step_key = $o", {"o": old}).fetchall()[0][0]:
-                    con.execute(f"drop table {stored}.{old_table}")
+                    con.execute(f"drop table {STORED}.{old_table}")
                     self._columns.pop(old_table, None)
             con.execute("commit")
         except BaseException:

@@ -139,10 +139,11 @@ INGEST_VERSIONS = Table(
     ),
 )
 
+STEP_CACHE_PREFIX = "step_cache_"
 STEP_CACHE = Table(
     "step_cache",
-    "The step cache's index (logiq_sql/storage/step_cache.py): one row per (scenario, step, drive) whose step output is kept "
-    "in the table step_cache_<key>. A step's key is a digest of its query text, the values it binds, the keys of "
+    "The step cache's index (logiq_sql/storage/step_cache.py), in the cache's own file <file>.step_cache: one row per "
+    "(scenario, step, drive) whose step output is kept in the table step_cache_<key> of that file. A step's key is a digest of its query text, the values it binds, the keys of "
     "the step tables it reads and the DuckDB version; an entry is read only while the drive's ingest version is "
     "the one it was computed from. Re-ingesting a drive drops its entries.",
     (
@@ -158,7 +159,7 @@ STEP_CACHE = Table(
 )
 
 OUTPUT_TABLES = (MATCHES, MATCH_PHASES, COVERAGE_SAMPLES, COVERAGE_BUCKETS, COVERAGE, MATCH_RUNS, DRIVE_SCENARIOS)
-TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES, STEP_CACHE)
+TABLES = (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES, INGEST_VERSIONS, *OUTPUT_TABLES)  # in the file
 
 
 DRIVES_VIEW = """
@@ -201,21 +202,25 @@ def comment_column(con: duckdb.DuckDBPyConnection, table: str, column: str, doc:
     con.execute(f"comment on column {table}.{column} is {sql_literal(doc)}")
 
 
-def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Column, ...] = ()) -> None:
+def create_table(con: duckdb.DuckDBPyConnection, table: Table, extra: tuple[Column, ...] = (),
+                 catalog: str | None = None) -> None:
+    """``table`` in the file (or in the attached database ``catalog``), created where missing, new columns added."""
     columns = (*table.columns, *extra)
+    name = table.name if catalog is None else f"{catalog}.main.{table.name}"
     cols = ",\n    ".join(
         f"{c.name} {duckdb_type(c.dtype)}{'' if c.nullable else ' NOT NULL'}" for c in columns
     )
-    con.execute(f"create table if not exists {table.name} (\n    {cols}\n)")
+    con.execute(f"create table if not exists {name} (\n    {cols}\n)")
     # a file written by an earlier version gains the nullable columns added since (NULL in its old rows)
     have = {r[0] for r in con.execute(
-        "select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' and database_name = current_database()", {"t": table.name}).fetchall()}
+        "select column_name from duckdb_columns() where table_name = $t and schema_name = 'main' "
+        "and database_name = coalesce($c, current_database())", {"t": table.name, "c": catalog}).fetchall()}
     for c in columns:
         if c.name not in have and c.nullable:
-            con.execute(f"alter table {table.name} add column {c.name} {duckdb_type(c.dtype)}")
-    con.execute(f"comment on table {table.name} is {sql_literal(table.doc)}")
+            con.execute(f"alter table {name} add column {c.name} {duckdb_type(c.dtype)}")
+    con.execute(f"comment on table {name} is {sql_literal(table.doc)}")
     for c in columns:
-        con.execute(f"comment on column {table.name}.{c.name} is {sql_literal(c.doc)}")
+        con.execute(f"comment on column {name}.{c.name} is {sql_literal(c.doc)}")
 
 
 # columns that mean the same in every derived table
@@ -242,6 +247,12 @@ def create_all(con: duckdb.DuckDBPyConnection) -> None:
     """Every table and the drives view, with their comments: created where missing, new columns added."""
     for table in TABLES:
         create_table(con, table)
+    # a file written before the step cache moved to a file of its own kept it inside: nothing reads it any more
+    for (name,) in con.execute(
+            "select table_name from duckdb_tables() where database_name = current_database() and schema_name = 'main' "
+            "and (table_name = $i or starts_with(table_name, $p))",
+            {"i": STEP_CACHE.name, "p": STEP_CACHE_PREFIX}).fetchall():
+        con.execute(f"drop table {name}")
     backfill_keys(con)
     con.execute(DRIVES_VIEW)
     con.execute("comment on view drives is " + sql_literal(

@@ -15,6 +15,7 @@ from logiq_sql import ingest, match
 from logiq_sql.core import sql
 from logiq_sql.core.sql import bind, tables_read
 from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
+from logiq_sql.storage import step_cache
 from logiq_sql.storage.step_cache import drive_column
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,11 +49,23 @@ def matched_once(tmp_path_factory, ingested) -> Path:
     return db
 
 
+def copy_with_cache(source: Path, target: Path) -> Path:
+    """The file ``source`` and its step cache (the file beside it) copied to ``target``."""
+    shutil.copyfile(source, target)
+    shutil.copyfile(step_cache.path_of(source), step_cache.path_of(target))
+    return target
+
+
+def cache_of(db: Path) -> duckdb.DuckDBPyConnection:
+    """The file ``db`` read-only, with its step cache attached read-only as ``cache``."""
+    con = duckdb.connect(str(db), read_only=True)
+    con.execute(f"attach '{step_cache.path_of(db)}' as cache (read_only)")
+    return con
+
+
 @pytest.fixture
 def matched(tmp_path, matched_once) -> Path:
-    db = tmp_path / "x.duckdb"
-    shutil.copyfile(matched_once, db)
-    return db
+    return copy_with_cache(matched_once, tmp_path / "x.duckdb")
 
 
 def assert_same_outputs(a: Path, b: Path) -> None:
@@ -71,8 +84,7 @@ def assert_same_outputs(a: Path, b: Path) -> None:
 
 def forced_copy(db: Path, before: Path, **kwargs) -> Path:
     """``before`` (the file as it was before the cached run on ``db``) matched again with --force."""
-    forced = db.with_name("forced.duckdb")
-    shutil.copyfile(before, forced)
+    forced = copy_with_cache(before, db.with_name("forced.duckdb"))
     match(forced, force=True, **kwargs)
     return forced
 
@@ -115,8 +127,7 @@ def assert_reran(result, must_run) -> None:
 
 @pytest.mark.parametrize("override", [{"same_road_limit": "6sec"}, {"min_scenario_duration": "3sec"}])
 def test_a_parameter_change_reruns_the_steps_that_bind_it_and_those_after_them(matched, tmp_path, override):
-    before = tmp_path / "before.duckdb"
-    shutil.copyfile(matched, before)
+    before = copy_with_cache(matched, tmp_path / "before.duckdb")
     result = match(matched, scenarios=SCENARIOS, overrides=override, batch_rows=1)
     assert result.up_to_date == {"follower_vehicle": 0, "sut_cut_out": 2}  # sut_cut_out has no such parameter
     rerun = dependent_steps("follower_vehicle", {}, override)
@@ -149,8 +160,7 @@ def test_a_changed_query_reruns_its_step_and_those_after_it(ingested, tmp_path):
     original = (ROOT / "queries/phases/follower_vehicle.sql").read_text()
     folder = own_follower(tmp_path / "mine", 1, original)
     match(db, scenarios=["follower_vehicle"], scenario_path=folder)
-    before = tmp_path / "before.duckdb"
-    shutil.copyfile(db, before)
+    before = copy_with_cache(db, tmp_path / "before.duckdb")
     # the actor counts as on the Ego's road only within half the same_road_limit: fewer or shorter matches
     changed = original.replace("+ $same_road_limit_s", "+ $same_road_limit_s / 2")
     assert changed != original
@@ -168,22 +178,21 @@ def test_a_changed_query_reruns_its_step_and_those_after_it(ingested, tmp_path):
 
 def test_a_reingested_drive_drops_its_entries_and_reruns_every_step(matched, tmp_path):
     drive, other = "USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b"
-    with duckdb.connect(str(matched), read_only=True) as con:
-        had = con.execute("select count(*) from step_cache where drive_id = $d", {"d": drive}).fetchall()[0][0]
+    with cache_of(matched) as con:
+        had = con.execute("select count(*) from cache.step_cache where drive_id = $d", {"d": drive}).fetchall()[0][0]
         version = con.execute("select ingest_version from ingest_versions where drive_id = $d",
                               {"d": drive}).fetchall()[0][0]
     assert had > 0
     ingest("commonroad", [DRIVES[0]], matched)
-    with duckdb.connect(str(matched), read_only=True) as con:
-        assert con.execute("select count(*) from step_cache where drive_id = $d", {"d": drive}).fetchall()[0][0] == 0
+    with cache_of(matched) as con:
+        assert con.execute("select count(*) from cache.step_cache where drive_id = $d",
+                           {"d": drive}).fetchall()[0][0] == 0
         assert con.execute("select ingest_version from ingest_versions where drive_id = $d",
                            {"d": drive}).fetchall()[0][0] != version
-        for (table,) in con.execute("select table_name from duckdb_tables() where table_name like 'step_cache_%'"
-                                    ).fetchall():
-            assert con.execute(f"select count(*) from {table} where {drive_column(con, table)} = $d", {"d": drive}
-                               ).fetchall()[0][0] == 0, table
-    before = tmp_path / "before.duckdb"
-    shutil.copyfile(matched, before)
+        for table in step_cache.cache_tables(con):
+            assert con.execute(f"select count(*) from cache.{table} where {drive_column(con, table)} = $d",
+                               {"d": drive}).fetchall()[0][0] == 0, table
+    before = copy_with_cache(matched, tmp_path / "before.duckdb")
     override = {"same_road_limit": "6sec"}  # both drives rerun, one per batch
     result = match(matched, scenarios=SCENARIOS, overrides=override, batch_rows=1)
     rerun = dependent_steps("follower_vehicle", {}, override)
@@ -200,18 +209,17 @@ KEYED_STEPS = ("phase_frames match/phase_frames.sql#phases=1", "phase_runs match
 
 def test_steps_keyed_by_drive_key_are_kept_per_drive_and_reused(matched, tmp_path):
     drives = ("USA_US101-22_1_T-1@2018b", "USA_US101-26_1_T-1@2018b")
-    with duckdb.connect(str(matched), read_only=True) as con:
-        kept = con.execute("select step, drive_id, table_name from step_cache where scenario = 'follower_vehicle'"
-                           ).fetchall()
+    with cache_of(matched) as con:
+        kept = con.execute("select step, drive_id, table_name from cache.step_cache "
+                           "where scenario = 'follower_vehicle'").fetchall()
         for step in KEYED_STEPS:
             tables = {t for s, d, t in kept if s == step}
             assert {d for s, d, _ in kept if s == step} == set(drives), step
             for table in tables:  # each row beside the drive it belongs to
                 assert drive_column(con, table) == "cached_drive_id", step
-                assert con.execute(f"select count(*) from {table} as c join drive_inputs as d on "
+                assert con.execute(f"select count(*) from cache.{table} as c join drive_inputs as d on "
                                    "c.drive_key = d.drive_key and c.cached_drive_id <> d.drive_id").fetchall()[0][0] == 0
-    before = tmp_path / "before.duckdb"
-    shutil.copyfile(matched, before)
+    before = copy_with_cache(matched, tmp_path / "before.duckdb")
     override = {"min_scenario_duration": "3sec"}  # read after the chains: they are reused, the match is not
     result = match(matched, scenarios=["follower_vehicle"], overrides=override, batch_rows=1)
     got = statuses(result, "follower_vehicle")
@@ -223,8 +231,7 @@ def test_steps_keyed_by_drive_key_are_kept_per_drive_and_reused(matched, tmp_pat
 
 
 def test_batches_of_several_drives_read_the_entries_of_single_drive_batches(matched, tmp_path):
-    before = tmp_path / "before.duckdb"
-    shutil.copyfile(matched, before)
+    before = copy_with_cache(matched, tmp_path / "before.duckdb")
     override = {"min_scenario_duration": "3sec"}
     result = match(matched, scenarios=["follower_vehicle"], overrides=override)  # both drives in one batch
     got = statuses(result, "follower_vehicle")
@@ -244,11 +251,38 @@ def test_the_cache_command_reports_the_size_and_clears(matched, capsys):
 
     assert main(["cache", "--db", str(matched)]) == 0
     rows = int(capsys.readouterr().out.split(": ", 1)[1].split(" rows")[0].replace(",", ""))
-    with duckdb.connect(str(matched), read_only=True) as con:
-        tables = [t for (t,) in con.execute("select table_name from duckdb_tables() "
-                                            "where table_name like 'step_cache_%'").fetchall()]
-        assert rows == sum(con.execute(f"select count(*) from {t}").fetchall()[0][0] for t in tables) > 0
+    with cache_of(matched) as con:
+        tables = step_cache.cache_tables(con)
+        assert rows == sum(con.execute(f"select count(*) from cache.{t}").fetchall()[0][0] for t in tables) > 0
     assert main(["cache", "--db", str(matched), "--clear"]) == 0
     assert "0 rows in 0 table(s), 0 index entries" in capsys.readouterr().out
     result = match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
     assert_reran(result, lambda *_: True)  # nothing left to reuse
+
+
+def test_the_cache_is_a_file_of_its_own_beside_the_file(matched, tmp_path):
+    """A run's working copy of the file (storage.db.Writer) copies the file, not the cache, most of its size."""
+    with duckdb.connect(str(matched), read_only=True) as con:
+        assert con.execute("select count(*) from duckdb_tables() where table_name like 'step_cache%'"
+                           ).fetchall()[0][0] == 0
+    with cache_of(matched) as con:
+        assert con.execute("select count(*) from cache.step_cache").fetchall()[0][0] > 0
+        assert step_cache.cache_tables(con)
+    # a file moved without its cache matches the same, from scratch
+    alone = tmp_path / "alone.duckdb"
+    shutil.copyfile(matched, alone)
+    result = match(alone, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
+    assert result.cache_steps and {status for *_, status in result.cache_steps} == {"computed"}
+    assert step_cache.path_of(alone).is_file()
+
+
+def test_a_file_that_kept_its_cache_inside_drops_it_when_next_written(matched):
+    """Files written before the cache moved beside the file held it in tables of their own: the next writer drops
+    them (nothing reads them any more)."""
+    with duckdb.connect(str(matched)) as con:
+        con.execute("create table step_cache (scenario varchar, step varchar)")
+        con.execute("create table step_cache_0123456789abcdef01234567 as select 1 as drive_id")
+    match(matched, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
+    with duckdb.connect(str(matched), read_only=True) as con:
+        assert con.execute("select count(*) from duckdb_tables() where table_name like 'step_cache%'"
+                           ).fetchall()[0][0] == 0
