@@ -2,10 +2,10 @@
 
 The cache is a DuckDB file of its own beside the file it serves (``<file>.step_cache``), attached to the writer's
 connection as the catalog ``cache``. Only the process that holds the file's writer lock opens it (``db.Writer``,
-``logiq-sql cache``), so it is written in place: a run's working copy of the file (db.Writer) leaves it out, where
-it had copied it, most of the file's size, on every run. Nothing in it needs the file's publish protocol: an entry
-holds for one ingest version of a drive, a fresh random id per ingest, so an entry written by a run that was never
-published can only be read for the rows it was computed from.
+``logiq-sql cache``), so it is written in place, and a run's working copy of the file (db.Writer) does not copy it:
+inside the file it was most of the file's size, copied at the start of every run. It needs none of the file's
+publish protocol: an entry holds for one ingest version of a drive, a fresh random id per ingest, so an entry that a
+run wrote and never published is read only for the rows it was computed from.
 
 A step's key is a digest of what its rows depend on: the query text it runs, the values it binds, the keys of the
 step tables it reads (so a changed step changes every step downstream of it), the DuckDB version and CACHE_FORMAT.
@@ -145,10 +145,16 @@ def drop_drives(con: duckdb.DuckDBPyConnection, drives: str) -> None:
     connection without the cache."""
     if not attached(con):
         return
-    for table in cache_tables(con):
-        con.execute(f"delete from {STORED}.{table} where {drive_column(con, table)} in ({drives})")
-    con.execute(f"delete from {INDEX} where drive_id in ({drives})")
-    _drop_unreferenced(con)
+    con.execute("begin transaction")  # one commit, and the index never names rows that are gone
+    try:
+        for table in cache_tables(con):
+            con.execute(f"delete from {STORED}.{table} where {drive_column(con, table)} in ({drives})")
+        con.execute(f"delete from {INDEX} where drive_id in ({drives})")
+        _drop_unreferenced(con)
+        con.execute("commit")
+    except BaseException:
+        con.execute("rollback")
+        raise
 
 
 def clear(con: duckdb.DuckDBPyConnection) -> None:
