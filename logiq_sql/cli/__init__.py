@@ -226,6 +226,9 @@ def cmd_cache(args: argparse.Namespace) -> int:
     from logiq_sql.storage import step_cache
 
     db = _existing_db(args)
+    if not step_cache.path_of(db).is_file():
+        print(f"step cache of {db}: none ({step_cache.path_of(db)} is made by the first match that keeps steps)")
+        return EXIT_OK
     with step_cache.opened(db, args.wait) as con:  # a run writing the file holds its cache open
         if args.clear:
             step_cache.clear(con)

@@ -160,8 +160,10 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         # the step cache (DuckDB engine only; a named in-memory database of match_frames has nothing to keep it
         # for): force recomputes every step, and still keeps what it computed
         mode = step_cache.mode()
-        cache = (StepCache(con, read=not force, keep_all=mode == "all")
-                 if engine == "duckdb" and mode != "off" and not str(db_path).startswith(":memory:") else None)
+        cache = None
+        if engine == "duckdb" and mode != "off" and not str(db_path).startswith(":memory:"):
+            step_cache.attach(con, db_path)  # <file>.step_cache, beside the file (created on first use)
+            cache = StepCache(con, read=not force, keep_all=mode == "all")
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables), cache)
         cleanup.callback(runner.close)
         relations_of.install(con)  # the relation of any ego on demand, since relations is kept only with keep

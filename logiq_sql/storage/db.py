@@ -152,7 +152,7 @@ class Writer:
         try:
             self._prepare(progress)
             self.con = connect(self.work)
-            step_cache.attach(self.con, self.path)
+            step_cache.attach(self.con, self.path, create=False)  # made by the first match that keeps steps
         except BaseException as exc:
             self._stop(exc)
             raise

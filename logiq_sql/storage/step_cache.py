@@ -86,15 +86,18 @@ def path_of(db_path: str | Path) -> Path:
     return Path(f"{db_path}{SUFFIX}")
 
 
-def attach(con: duckdb.DuckDBPyConnection, db_path: str | Path) -> None:
-    """Attach the step cache of the file ``db_path`` to ``con`` as ``cache`` (created on first use), for the process
-    holding that file's writer lock: DuckDB lets one process at a time open a file for writing."""
+def attach(con: duckdb.DuckDBPyConnection, db_path: str | Path, create: bool = True) -> None:
+    """Attach the step cache of the file ``db_path`` to ``con`` as ``cache``, for the process holding that file's
+    writer lock (DuckDB lets one process at a time open a file for writing). ``create``: make the cache's file when
+    there is none (a match that keeps steps); else only one that exists is attached (ingest drops entries of it)."""
+    if not create and not path_of(db_path).is_file():
+        return
     con.execute(f"attach if not exists {sql_literal(str(path_of(db_path)))} as {CATALOG}")
     tables.create_table(con, tables.STEP_CACHE, catalog=CATALOG)
 
 
 def attached(con: duckdb.DuckDBPyConnection) -> bool:
-    """Whether ``con`` has the step cache (a writer's connection to a file; not a reader's, nor an in-memory one)."""
+    """Whether ``con`` has the step cache attached (a writer's, when the file has one; never a reader's)."""
     return con.execute("select count(*) from duckdb_databases() where database_name = $c",
                        {"c": CATALOG}).fetchall()[0][0] > 0
 

@@ -334,8 +334,7 @@ def test_a_full_disk_stops_the_run_with_exit_5_and_leaves_the_published_file(sma
     assert f"logiq-sql: disk full: {db}: the disk filled up while this run wrote its copy" in run_.stderr
     assert "Traceback" not in run_.stderr
     assert check(db) == before and db.stat().st_size == size
-    # the copy is gone; the step cache (its own file, written in place) stays
-    assert sorted(p.name for p in small_disk.iterdir()) == ["x.duckdb", "x.duckdb.lock", "x.duckdb.step_cache"]
+    assert sorted(p.name for p in small_disk.iterdir()) == ["x.duckdb", "x.duckdb.lock"]  # the copy is gone
     assert run(["ingest", "commonroad", str(SEED_SCENES[1]), "--db", str(db), "--quiet"])[0] == 0  # room again
     assert check(db)[0] == 2
 
@@ -399,7 +398,7 @@ def test_a_leftover_copy_of_another_version_of_the_file_is_discarded_not_publish
     ingest("commonroad", SEED_SCENES[1:2], db, progress=lines.append)
     assert not any("taking up" in line for line in lines)
     assert check(db)[0] == 2 and consistent(check(db))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.duckdb", "x.duckdb.lock", "x.duckdb.step_cache"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.duckdb", "x.duckdb.lock"]
 
 
 def test_a_run_does_not_publish_over_a_file_written_in_place_meanwhile(tmp_path):

@@ -260,7 +260,7 @@ def test_the_cache_command_reports_the_size_and_clears(matched, capsys):
     assert_reran(result, lambda *_: True)  # nothing left to reuse
 
 
-def test_the_cache_is_a_file_of_its_own_beside_the_file(matched, tmp_path):
+def test_the_cache_is_a_file_of_its_own_beside_the_file(matched, tmp_path, capsys):
     """A run's working copy of the file (storage.db.Writer) copies the file, not the cache, most of its size."""
     with duckdb.connect(str(matched), read_only=True) as con:
         assert con.execute("select count(*) from duckdb_tables() where table_name like 'step_cache%'"
@@ -271,6 +271,10 @@ def test_the_cache_is_a_file_of_its_own_beside_the_file(matched, tmp_path):
     # a file moved without its cache matches the same, from scratch
     alone = tmp_path / "alone.duckdb"
     shutil.copyfile(matched, alone)
+    from logiq_sql.cli import main
+
+    assert main(["cache", "--db", str(alone)]) == 0 and not step_cache.path_of(alone).exists()
+    assert ": none (" in capsys.readouterr().out
     result = match(alone, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
     assert result.cache_steps and {status for *_, status in result.cache_steps} == {"computed"}
     assert step_cache.path_of(alone).is_file()
