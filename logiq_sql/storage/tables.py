@@ -142,10 +142,11 @@ INGEST_VERSIONS = Table(
 STEP_CACHE_PREFIX = "step_cache_"
 STEP_CACHE = Table(
     "step_cache",
-    "The step cache's index (logiq_sql/storage/step_cache.py), in the cache's own file <file>.step_cache: one row per "
-    "(scenario, step, drive) whose step output is kept in the table step_cache_<key> of that file. A step's key is a digest of its query text, the values it binds, the keys of "
-    "the step tables it reads and the DuckDB version; an entry is read only while the drive's ingest version is "
-    "the one it was computed from. Re-ingesting a drive drops its entries.",
+    "The step cache's index (logiq_sql/storage/step_cache.py), in the cache's own file <file>.step_cache: one row "
+    "per (scenario, step, drive) whose step output is kept in the table step_cache_<key> of that file. A step's key "
+    "is a digest of its query text, the values it binds, the keys of the step tables it reads and the DuckDB "
+    "version; an entry is read only while the drive's ingest version is the one it was computed from. Re-ingesting "
+    "a drive drops its entries.",
     (
         Column("scenario", S, "A scenario whose run used the entry: each scenario keeps its latest entry per step.",
                False),
