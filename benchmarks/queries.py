@@ -22,7 +22,7 @@ from pathlib import Path
 import duckdb
 
 from benchmarks.tiers import WORK
-from logiq_sql.core.sql import SINGLE_THREADED, bind, materialise, query_text
+from logiq_sql.core.sql import bind, materialise, query_text
 from logiq_sql.matching.encroachment import encroachments
 from logiq_sql.spec.plan import JUNCTION_STEPS, RELATION_STEPS, parse_ego, resolve_scenarios, run_values, scenario_steps
 
@@ -76,7 +76,7 @@ def compare(con: duckdb.DuckDBPyConnection, rel: str, bound: dict[str, object], 
         texts = {name: f"select * from (\n{text}\n) as step where holds" for name, text in texts.items()}
     best = {name: float("inf") for name in texts}
     best_cpu = dict(best)
-    con.execute(f"set threads = {1 if rel in SINGLE_THREADED else threads}")  # as a run executes it
+    con.execute(f"set threads = {threads}")  # as a run executes it
     for _ in range(repeat):
         for name, text in texts.items():
             start, cpu = time.perf_counter(), time.process_time()

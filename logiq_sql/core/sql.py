@@ -184,13 +184,6 @@ def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
     return relative, tuple(sorted(bind(relative, values).items()))
 
 
-# Query files that DuckDB 2.0.0 runs on one thread: with two, ego_lanes.sql stops with "INTERNAL Error:
-# dict-surviving cache: global dictionary column 0 changed identity after being seeded for dictionary caching" (its
-# dictionary-aware caching operator, added by duckdb/duckdb#23447) on the bundled SUMO junction; on one thread it gives the rows. Remove an entry
-# when a DuckDB release no longer fails (tests/matching/test_relations_of.py and the golden test run that drive).
-SINGLE_THREADED = ("relations/ego_lanes.sql",)
-
-
 def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object],
                 holding: bool = False) -> None:
     """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours);
@@ -198,15 +191,7 @@ def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, value
     query = query_text(relative)
     statement = f"create or replace temp table {table} as " + (
         f"select * from (\n{query}\n) as step where holds" if holding else query)
-    if relative not in SINGLE_THREADED:
-        con.execute(statement, bind(relative, values))
-        return
-    threads = con.execute("select current_setting('threads')").fetchone()[0]
-    con.execute("set threads = 1")
-    try:
-        con.execute(statement, bind(relative, values))
-    finally:
-        con.execute(f"set threads = {int(threads)}")
+    con.execute(statement, bind(relative, values))
 
 
 def drop_temp(con: duckdb.DuckDBPyConnection, name: str) -> None:

@@ -9,8 +9,6 @@ rows as the matcher computes them (the same query files, queries/relations/*.sql
 lane_calculation_tolerance_length) and ``min_closing_speed_mps`` (default 0.1, the vehicle scenarios'
 min_closing_speed: TTC and MTTC are NULL below it) are the values the matcher would bind; other kinds than vehicles
 are related within min(relation_range_m, 50) m, as in match. ``match`` creates the macro in the file it matches.
-With DuckDB 2.0.0, run it after ``set threads = 1``: it holds ego_lanes.sql, which on two threads can stop with an
-internal error on some drives (``logiq_sql.core.sql.SINGLE_THREADED``).
 """
 
 from __future__ import annotations

@@ -23,7 +23,6 @@ def db(tmp_path_factory) -> Path:
 
 def _same_rows(db: Path, macro_args: str = "") -> int:
     with duckdb.connect(str(db), read_only=True) as con:
-        con.execute("set threads = 1")  # the macro holds ego_lanes.sql: DuckDB 2.0.0's internal error (sql.SINGLE_THREADED)
         egos = con.execute("select distinct drive_id, ego_id from relations order by all").fetchall()
         assert len(egos) >= 5
         compared = 0

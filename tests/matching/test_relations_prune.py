@@ -66,7 +66,6 @@ def test_the_kept_relations_are_relations_of_of_the_declared_kinds(runs):
     """The kept rows of the cyclist-alone run are exactly relations_of's cyclist rows, ego by ego; the run with the
     follower keeps every kind, so more rows (this comparison can fail)."""
     with duckdb.connect(str(runs["alone"]), read_only=True) as con:
-        con.execute("set threads = 1")  # the macro holds ego_lanes.sql: DuckDB 2.0.0's internal error (sql.SINGLE_THREADED)
         egos = con.execute("select distinct drive_id, ego_id from ego_lanes order by all").fetchall()
         assert len(egos) >= 5
         compared = 0
