@@ -43,7 +43,6 @@ from logiq_sql.core.sql import sql_literal
 from logiq_sql.storage import locking, tables
 
 CACHE_FORMAT = "1"  # bump when what a key covers changes
-TABLE_PREFIX = tables.STEP_CACHE_PREFIX
 SUFFIX = ".step_cache"  # the cache's own DuckDB file: <file>.step_cache
 CATALOG = "cache"  # the name it is attached under
 STORED = f"{CATALOG}.main"
@@ -90,9 +89,9 @@ def attach(con: duckdb.DuckDBPyConnection, db_path: str | Path, create: bool = T
     """Attach the step cache of the file ``db_path`` to ``con`` as ``cache``, for the process holding that file's
     writer lock (DuckDB lets one process at a time open a file for writing). ``create``: make the cache's file when
     there is none (a match that keeps steps); else only one that exists is attached (ingest drops entries of it)."""
-    if not create and not path_of(db_path).is_file():
-        return
-    con.execute(f"attach if not exists {sql_literal(str(path_of(db_path)))} as {CATALOG}")
+    if attached(con) or (not create and not path_of(db_path).is_file()):
+        return  # already attached: by the run's writer, when the file had a cache
+    con.execute(f"attach {sql_literal(str(path_of(db_path)))} as {CATALOG}")
     tables.create_table(con, tables.STEP_CACHE, catalog=CATALOG)
 
 
@@ -133,7 +132,7 @@ def set_versions(con: duckdb.DuckDBPyConnection, drives: str) -> None:
 def cache_tables(con: duckdb.DuckDBPyConnection) -> list[str]:
     return [r[0] for r in con.execute(
         "select table_name from duckdb_tables() where starts_with(table_name, $p) and database_name = $c "
-        "order by table_name", {"p": TABLE_PREFIX, "c": CATALOG}).fetchall()]
+        "order by table_name", {"p": tables.STEP_CACHE_PREFIX, "c": CATALOG}).fetchall()]
 
 
 def drive_column(con: duckdb.DuckDBPyConnection, table: str) -> str:
@@ -271,7 +270,7 @@ class StepCache:
             return False
         if not self._holds(key):
             return False
-        data = f"{TABLE_PREFIX}{key}"
+        data = f"{tables.STEP_CACHE_PREFIX}{key}"
         column = self._drive_column(data)
         columns = "*" if column == "drive_id" else f"* exclude ({column})"
         # a table holds only the rows of the drives whose entries name it: when those are all of the batch, no
@@ -290,7 +289,7 @@ class StepCache:
         if not (self._usable and owners):
             self.uncached += 1
             return
-        con, data = self.con, f"{TABLE_PREFIX}{key}"
+        con, data = self.con, f"{tables.STEP_CACHE_PREFIX}{key}"
         if computed:
             columns = {r[0] for r in con.execute(
                 "select column_name from duckdb_columns() where table_name = $t and database_name = 'temp'",
