@@ -69,11 +69,28 @@ run_first_lane as (
     where nth = 1
 ),
 
+leaving as (
+    -- lanes that turn off the ego's road: the direct successors of the lanes it drove in each lane run
+    select road.drive_key, road.ego_key, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
+    from road
+    inner join drive_inputs as d
+        on road.drive_key = d.drive_key
+    inner join lane_successors as s
+        on d.map_id = s.map_id and road.lane_id = s.lane_id
+),
+
+leaving_lanes as (
+    -- each lane leaving the ego's road in a lane run, once (a lane can leave it from several of its lanes)
+    select distinct drive_key, ego_key, lane_run, lane_id
+    from leaving
+),
+
 behind as (
     select
         r.drive_key,
         r.ego_key,
         r.actor_key,
+        d.map_id,
         r.drive_id,
         r.ego_id,
         r.actor_id,
@@ -105,7 +122,10 @@ behind as (
         -- when the ego entered the lane of its road the actor is on, if it has left that lane and its successor
         -- since (it is past a fork)
         case when road.lane_id is not null and r.actor_lane_id <> r.ego_lane_id and next_lane.lane_id is null
-            then road.first_s end as left_lane_first_s
+            then road.first_s end as left_lane_first_s,
+        -- on a lane leaving the ego's road in this lane run (when, is turning_off's test): only these rows of the
+        -- many behind the ego off its road are read again, so the rows this step keeps stay few
+        lv.lane_id is not null as on_leaving_lane
     from relations as r
     left join run_first_lane as fl
         on r.drive_key = fl.drive_key and r.ego_key = fl.ego_key and r.lane_run = fl.lane_run
@@ -114,6 +134,9 @@ behind as (
         and r.actor_lane_id = road.lane_id
         and road.first_s <= r.t_s
         and road.last_s >= r.t_s - $same_road_limit_s
+    left join leaving_lanes as lv
+        on r.drive_key = lv.drive_key and r.ego_key = lv.ego_key and r.lane_run = lv.lane_run
+        and r.actor_lane_id = lv.lane_id
     left join drive_inputs as d
         on r.drive_key = d.drive_key
     left join lane_successors as next_lane
@@ -123,10 +146,10 @@ behind as (
 
 left_lanes as (
     -- actors behind the ego on a lane of its road that the ego has left: the lane, and when the actor was last on it
-    select drive_key, ego_key, actor_key, actor_lane_id, left_lane_first_s, max(t_s) as last_on_lane_s
+    select drive_key, ego_key, actor_key, map_id, actor_lane_id, left_lane_first_s, max(t_s) as last_on_lane_s
     from behind
     where left_lane_first_s is not null
-    group by drive_key, ego_key, actor_key, actor_lane_id, left_lane_first_s
+    group by drive_key, ego_key, actor_key, map_id, actor_lane_id, left_lane_first_s
 ),
 
 diverging as (
@@ -135,30 +158,18 @@ diverging as (
     -- is near the ego meanwhile). An actor that leaves by a lane change is not bound elsewhere by this rule
     select l.drive_key, l.ego_key, l.actor_key, l.actor_lane_id
     from left_lanes as l
-    inner join drive_inputs as d
-        on l.drive_key = d.drive_key
     inner join relations as r
         on l.drive_key = r.drive_key and l.ego_key = r.ego_key and l.actor_key = r.actor_key
         and r.t_s > l.last_on_lane_s and r.t_s <= l.last_on_lane_s + $same_road_limit_s
         and r.actor_lane_id <> l.actor_lane_id
     left join lane_successors as onward
-        on d.map_id = onward.map_id and l.actor_lane_id = onward.lane_id and r.actor_lane_id = onward.successor_id
+        on l.map_id = onward.map_id and l.actor_lane_id = onward.lane_id and r.actor_lane_id = onward.successor_id
     left join (select distinct drive_key, ego_key, lane_id, first_s from road) as later
         on r.drive_key = later.drive_key and r.ego_key = later.ego_key and r.actor_lane_id = later.lane_id
         and later.first_s > l.left_lane_first_s
     group by l.drive_key, l.ego_key, l.actor_key, l.actor_lane_id
     having max(case when onward.lane_id is not null then 1 else 0 end) = 1
         and max(case when later.lane_id is not null then 1 else 0 end) = 0
-),
-
-leaving as (
-    -- lanes that turn off the ego's road: the direct successors of the lanes it drove in each lane run
-    select road.drive_key, road.ego_key, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
-    from road
-    inner join drive_inputs as d
-        on road.drive_key = d.drive_key
-    inner join lane_successors as s
-        on d.map_id = s.map_id and road.lane_id = s.lane_id
 ),
 
 turning_off as (
@@ -170,7 +181,7 @@ turning_off as (
         and b.actor_lane_id = lv.lane_id
         and lv.first_s <= b.t_s
         and lv.last_s >= b.t_s - $same_road_limit_s
-    where b.actor_behind and not b.actor_on_ego_road
+    where b.actor_behind and not b.actor_on_ego_road and b.on_leaving_lane
     group by b.drive_key, b.ego_key, b.frame
 ),
 
