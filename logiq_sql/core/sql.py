@@ -185,12 +185,12 @@ def step_key(relative: str, values: dict[str, object]) -> tuple[str, tuple]:
 
 
 def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, values: dict[str, object],
-                holding: bool = False) -> None:
+                kept: str | None = None) -> None:
     """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours);
-    ``holding``: only the rows whose ``holds`` is true (``Engine.materialise``)."""
+    ``kept``: only the rows whose boolean column of that name is true (``Engine.materialise``)."""
     query = query_text(relative)
     statement = f"create or replace temp table {table} as " + (
-        f"select * from (\n{query}\n) as step where holds" if holding else query)
+        f"select * from (\n{query}\n) as step where {kept}" if kept else query)
     con.execute(statement, bind(relative, values))
 
 

@@ -51,9 +51,10 @@ class Engine:
     # the DuckDB engine copies the batch's rows before such a step runs, where other steps read them through views
     wide: bool = False
 
-    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
-        """queries/<relative> with ``values`` bound, kept as ``table``; ``holding``: only its rows whose ``holds``
-        is true (a phase step in a match, where nothing reads the others: ``runner.run_scenario``)."""
+    def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
+        """queries/<relative> with ``values`` bound, kept as ``table``; ``kept``: only its rows whose boolean column
+        of that name is true (a phase or frames step in a match, where nothing reads the others:
+        ``runner.kept_rows``)."""
         raise NotImplementedError
 
     def frame(self, sql: str) -> pl.DataFrame:

@@ -65,16 +65,16 @@ class DuckEngine(Engine):
             self.cache.record(self.owners, step, table, key, computed=True,
                               compute_s=time.process_time() - started)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
-        text = query_text(relative) + ("\n-- only the rows where holds" if holding else "")  # other rows, other key
+    def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
+        text = query_text(relative) + (f"\n-- only the rows where {kept}" if kept else "")  # other rows, other key
         reads = tables_read(relative) - cte_names(relative)
         key = self._cache_key(text, bind(relative, values), reads)
         if not reads:  # rows of the bound values alone (a scenario's phase limits): keyed, never worth keeping
             self._clear(table)
-            self._compute(table, relative, values, holding)
+            self._compute(table, relative, values, kept)
             self._keys[table] = key
             return
-        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, holding))
+        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, kept))
 
     def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))
@@ -84,17 +84,17 @@ class DuckEngine(Engine):
 
         self._cached(table, f"{table} {compute.__module__}", key, run)
 
-    def _compute(self, table: str, relative: str, values: dict[str, object], holding: bool) -> None:
+    def _compute(self, table: str, relative: str, values: dict[str, object], kept: str | None) -> None:
         self._copy_inputs(tables_read(relative))
         key = step_key(relative, values) if any(relative == rel for rel, _ in self._shared) else None
         if key not in self._shared:
-            materialise(self.con, table, relative, values, holding)
+            materialise(self.con, table, relative, values, kept)
             return
         # computed once, read by each scenario through a view: copying a shared step's rows costs a fraction of
         # computing them again (benchmarks/README.md, "Figures behind the code's comments")
         if key not in self._kept:  # (shared steps are phase steps of a match: each reader asks for the same rows)
             self._kept[key] = f"_shared_step_{len(self._kept) + 1}"
-            materialise(self.con, self._kept[key], relative, values, holding)
+            materialise(self.con, self._kept[key], relative, values, kept)
         self.con.execute(f"drop table if exists temp.main.{table}")
         self.con.execute(f"create temp view {table} as select * from {self._kept[key]}")
         self._views.add(table)

@@ -107,10 +107,10 @@ class PolarsEngine(Engine):
         return (frame.join(digests, on=column, how="left", nulls_equal=True, maintain_order="left")
                 .with_columns(pl.col("_md5").alias(column)).drop("_md5"))
 
-    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         check_runs(relative)
         rows = self.run(relative, values)
-        self.ctx.register(table, (rows.filter(pl.col("holds")) if holding else rows).lazy())
+        self.ctx.register(table, (rows.filter(pl.col(kept)) if kept else rows).lazy())
 
     def frame(self, sql: str) -> pl.DataFrame:
         return self.ctx.execute(as_query(sql), eager=True)

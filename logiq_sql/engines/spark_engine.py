@@ -227,13 +227,13 @@ class SparkEngine(Engine):
         """Name the jobs that follow after ``what`` (the Spark UI's and event log's job description)."""
         self.spark.sparkContext.setJobDescription(what)
 
-    def materialise(self, table: str, relative: str, values: dict[str, object], holding: bool = False) -> None:
+    def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         args = bind(relative, values)
         *shared, (_, query) = spark_statements(relative)
         for view, text in shared:  # the CTEs read more than once, computed once (spark_statements)
             self.keep_frame(view, self.spark.sql(text, args=args))
         rows = self.spark.sql(query, args=args)
-        self.keep_frame(table, rows.where("holds") if holding else rows)
+        self.keep_frame(table, rows.where(kept) if kept else rows)
         self.forget(tuple(view for view, _ in shared))  # the step is computed; it no longer reads them
 
     def define(self, table: str, relative: str, values: dict[str, object]) -> None:

@@ -34,8 +34,8 @@ MAP_INPUTS = (*schema.MAP_TABLES, schema.TRAFFIC_LIGHT_STATES)
 # A scenario whose own steps (phases, match, KPIs) read one of these tables cannot find anything without the
 # inputs it is built from; every other table a step reads comes from the tracks alone.
 BUILT_FROM = {
-    **{t: ("lanes",) for t in ("lanes", "lane_successors", "track_lanes", "actor_lanes", "ego_lanes", "lane_line",
-                               "lane_neighbours")},
+    **{t: ("lanes",) for t in ("lanes", "lane_successors", "track_lanes", "actor_lanes", "ego_lanes", "ego_road",
+                               "lane_line", "lane_neighbours")},
     **{t: ("lanes", "junctions") for t in ("junctions", "passages", "junction_frames", "crossing_pairs")},
     "traffic_lights": ("traffic_lights",),
     "traffic_light_states": ("traffic_light_states",),

@@ -14,7 +14,7 @@ from logiq_sql.core.timing import stage
 from logiq_sql.engines import as_engine
 from logiq_sql.engines.base import Engine
 from logiq_sql.matching.encroachment import ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA, encroachments
-from logiq_sql.spec.contract import sample_columns
+from logiq_sql.spec.contract import output_columns, sample_columns
 from logiq_sql.spec.plan import (
     ALL_KINDS_CSV,
     IDENTIFY_QUERY,
@@ -99,10 +99,16 @@ def coverage_samples(s: Scenario, metrics: pl.DataFrame) -> pl.DataFrame:
     return pl.concat(frames) if frames else pl.DataFrame(schema=COVERAGE_SAMPLES.polars_schema)
 
 
-def is_phase(table: str) -> bool:
-    """A phase step's table: in a match only its rows where the phase holds are kept, for the runs and the KPIs
-    read no others (explain computes every row, to say which condition failed)."""
-    return re.fullmatch(r"phase_\d+", table) is not None
+def kept_rows(s: Scenario, table: str) -> str | None:
+    """The boolean column whose true rows a match keeps of the step ``table`` (None: every row). ``holds`` for a
+    phase step: the runs and the KPIs read no other rows. ``may_hold`` for a frames step that has it: the rows that
+    can hold, or that the phases read, for some value of the parameters. explain computes every row, to say which
+    condition failed."""
+    if re.fullmatch(r"phase_\d+", table) is not None:
+        return "holds"
+    if table == "scenario_frames" and "may_hold" in (output_columns(s.frames_query) or ()):
+        return "may_hold"
+    return None
 
 
 def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> ScenarioOutput:
@@ -110,7 +116,7 @@ def run_scenario(engine: Engine, s: Scenario, values: dict[str, object]) -> Scen
     engine.owners = (s.name,)
     with stage(f"scenario {s.name}"):
         for table, rel in phase_steps(s):
-            engine.materialise(table, rel, values, holding=is_phase(table))
+            engine.materialise(table, rel, values, kept=kept_rows(s, table))
         engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
         engine.materialise("scenario_match_phases", MATCH_PHASES_QUERY, values)
         matches = engine.frame("scenario_matches")

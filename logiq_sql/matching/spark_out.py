@@ -31,7 +31,7 @@ import polars as pl
 
 from logiq_sql.core.sql import sql_literal
 from logiq_sql.core.timing import stage
-from logiq_sql.matching.runner import coverage_buckets, is_phase
+from logiq_sql.matching.runner import coverage_buckets, kept_rows
 from logiq_sql.spec.contract import sample_columns
 from logiq_sql.spec.plan import (
     IDENTIFY_QUERY,
@@ -117,7 +117,7 @@ class SparkResults:
         engine, spark = self.engine, self.spark
         with stage(f"scenario {s.name}"):
             for table, rel in phase_steps(s):
-                engine.materialise(table, rel, values, holding=is_phase(table))
+                engine.materialise(table, rel, values, kept=kept_rows(s, table))
             engine.materialise("scenario_matches", IDENTIFY_QUERY, values)
             engine.materialise("scenario_match_phases", MATCH_PHASES_QUERY, values)
         matches = spark.table("scenario_matches")

@@ -31,6 +31,7 @@ RELATION_STEPS = (
     ("lane_neighbours", "relations/lane_neighbours.sql"),
     ("actor_lanes", "relations/actor_lanes.sql"),
     ("ego_lanes", "relations/ego_lanes.sql"),
+    ("ego_road", "relations/ego_road.sql"),
     ("relations", "relations/relations.sql"),
 )
 # junction geometry, for the scenarios that declare `junctions = true`; encroachments (shapely) come after them

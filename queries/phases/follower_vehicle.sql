@@ -2,8 +2,9 @@
 -- grain: one row per (drive_id, ego_id, actor_id, frame) at which the actor is behind the ego (dx_m < 0): the
 --        phase contract (docs/scenarios.md): keys, frame, t_s, segment, holds, each condition and the values
 --        it tests
--- reads: relations, ego_lanes, drive_inputs, lane_successors (joined on the integer keys drive_key, ego_key,
---        actor_key)
+-- reads: scenario_frames (phases/follower_vehicle_frames.sql: the measured values and the lane facts no parameter
+--        changes), ego_road, relations, drive_inputs, lane_successors (joined on the integer keys drive_key,
+--        ego_key, actor_key)
 -- params: $kinds_csv, $min_distance_from_sut_in_time_units_s, $max_distance_from_sut_in_time_units_s,
 --         $same_road_limit_s
 --
@@ -39,109 +40,51 @@
 -- segment = the ego's lane run: "The Ego drives in one lane", so a run never spans a lane change of the ego.
 with
 
-road as (
-    -- lanes the ego drove in during each lane run: when it entered and when it last was in each
-    select
-        drive_key,
-        ego_key,
-        lane_run,
-        lane_id,
-        min(t_s) as first_s,
-        max(t_s) as last_s
-    from ego_lanes
-    where lane_id is not null
-    group by drive_key, ego_key, lane_run, lane_id
-),
-
-run_first_lane as (
-    -- the lane each lane run began in (its first frame in a lane)
-    select drive_key, ego_key, lane_run, lane_id
-    from (
-        select
-            drive_key,
-            ego_key,
-            lane_run,
-            lane_id,
-            row_number() over (partition by drive_key, ego_key, lane_run order by frame) as nth
-        from ego_lanes
-        where lane_id is not null
-    ) as numbered
-    where nth = 1
-),
-
 leaving as (
     -- lanes that turn off the ego's road: the direct successors of the lanes it drove in each lane run
     select road.drive_key, road.ego_key, road.lane_run, s.successor_id as lane_id, road.first_s, road.last_s
-    from road
+    from ego_road as road
     inner join drive_inputs as d
         on road.drive_key = d.drive_key
     inner join lane_successors as s
         on d.map_id = s.map_id and road.lane_id = s.lane_id
 ),
 
-leaving_lanes as (
-    -- each lane leaving the ego's road in a lane run, once (a lane can leave it from several of its lanes)
-    select distinct drive_key, ego_key, lane_run, lane_id
-    from leaving
+on_road as (
+    -- the actor's lane is a lane the ego drove in during the last same_road_limit seconds of its lane run
+    select *, coalesce(road_last_s >= t_s - $same_road_limit_s, false) as on_road_lane
+    from scenario_frames
 ),
 
 behind as (
     select
-        r.drive_key,
-        r.ego_key,
-        r.actor_key,
-        d.map_id,
-        r.drive_id,
-        r.ego_id,
-        r.actor_id,
-        r.frame,
-        r.t_s,
-        r.lane_run,
-        r.ego_lane_id,
-        r.actor_lane_id,
-        r.actor_kind,
-        r.lon_gap_m,
-        greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) as follow_gap_m,
-        case when r.actor_speed_mps > 0
-            then greatest(r.lon_gap_m + r.lat_gap_m, r.box_distance_m) / r.actor_speed_mps end
-            as follow_headway_s,
+        drive_key,
+        ego_key,
+        actor_key,
+        map_id,
+        drive_id,
+        ego_id,
+        actor_id,
+        frame,
+        t_s,
+        lane_run,
+        ego_lane_id,
+        actor_lane_id,
+        actor_kind,
+        lon_gap_m,
+        follow_gap_m,
+        follow_headway_s,
         -- behind along the road: past the ego's rear bumper on its heading, or on a lane the ego drove before its
         -- present one in the same line of lanes (a long ego turning sharply swings its rear across the lane behind
         -- it, so a car following it round the corner is beside its rear on its new heading for a second or two),
         -- boxes apart. Never a lane beside: a car alongside in a lane the ego drifted through is not behind it
-        r.lon_gap_m > 0
-            or (r.same_lane and road.lane_id is not null and r.actor_lane_id <> r.ego_lane_id
-                and r.box_distance_m > 0)
-            as actor_behind,
-        coalesce(
-            r.actor_lane_id = r.ego_lane_id
-            or road.lane_id is not null
-            or (r.same_lane and fl.lane_id = r.ego_lane_id),
-            false
-        ) as actor_on_ego_road,
+        past_rear_bumper or (beside_rear_on_lane_behind and on_road_lane) as actor_behind,
+        coalesce(on_ego_lane or on_road_lane or next_to_first_lane, false) as actor_on_ego_road,
         -- when the ego entered the lane of its road the actor is on, if it has left that lane and its successor
         -- since (it is past a fork)
-        case when road.lane_id is not null and r.actor_lane_id <> r.ego_lane_id and next_lane.lane_id is null
-            then road.first_s end as left_lane_first_s,
-        -- on a lane leaving the ego's road in this lane run (when, is turning_off's test): only these rows of the
-        -- many behind the ego off its road are read again, so the rows this step keeps stay few
-        lv.lane_id is not null as on_leaving_lane
-    from relations as r
-    left join run_first_lane as fl
-        on r.drive_key = fl.drive_key and r.ego_key = fl.ego_key and r.lane_run = fl.lane_run
-    left join road
-        on r.drive_key = road.drive_key and r.ego_key = road.ego_key and r.lane_run = road.lane_run
-        and r.actor_lane_id = road.lane_id
-        and road.first_s <= r.t_s
-        and road.last_s >= r.t_s - $same_road_limit_s
-    left join leaving_lanes as lv
-        on r.drive_key = lv.drive_key and r.ego_key = lv.ego_key and r.lane_run = lv.lane_run
-        and r.actor_lane_id = lv.lane_id
-    left join drive_inputs as d
-        on r.drive_key = d.drive_key
-    left join lane_successors as next_lane
-        on d.map_id = next_lane.map_id and r.actor_lane_id = next_lane.lane_id and r.ego_lane_id = next_lane.successor_id
-    where r.dx_m < 0
+        case when on_road_lane and past_lane_and_successor then road_first_s end as left_lane_first_s,
+        on_leaving_lane
+    from on_road
 ),
 
 left_lanes as (
@@ -164,7 +107,7 @@ diverging as (
         and r.actor_lane_id <> l.actor_lane_id
     left join lane_successors as onward
         on l.map_id = onward.map_id and l.actor_lane_id = onward.lane_id and r.actor_lane_id = onward.successor_id
-    left join (select distinct drive_key, ego_key, lane_id, first_s from road) as later
+    left join (select distinct drive_key, ego_key, lane_id, first_s from ego_road) as later
         on r.drive_key = later.drive_key and r.ego_key = later.ego_key and r.actor_lane_id = later.lane_id
         and later.first_s > l.left_lane_first_s
     group by l.drive_key, l.ego_key, l.actor_key, l.actor_lane_id

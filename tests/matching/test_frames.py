@@ -123,8 +123,10 @@ def test_without_a_map_the_scenarios_that_need_none_still_run(nuscenes):
     # every scenario but the cyclist's reads the lanes
     assert sorted(reasons) == sorted(s.name for s in list_scenarios() if s.name != "cyclist_close_to_moving_sut")
     assert reasons["follower_vehicle"] == (
-        "follower_vehicle cannot run without lanes: queries/phases/follower_vehicle.sql reads ego_lanes (built from "
-        "lanes), lane_successors (built from lanes). Fix: pass lanes= to match_frames (columns in docs/tables.md).")
+        "follower_vehicle cannot run without lanes: queries/phases/follower_vehicle_frames.sql reads ego_lanes (built "
+        "from lanes), ego_road (built from lanes), lane_successors (built from lanes); queries/phases/"
+        "follower_vehicle.sql reads ego_road (built from lanes), lane_successors (built from lanes). Fix: pass lanes= "
+        "to match_frames (columns in docs/tables.md).")
     assert reasons[LEFT_TURN].startswith(f"{LEFT_TURN} cannot run without lanes, junctions, traffic_light_states, "
                                          "traffic_lights: ")
     assert set(bare.drive_scenarios["scenario"]) == {"cyclist_close_to_moving_sut"}
