@@ -12,6 +12,7 @@ import duckdb
 import pytest
 
 from logiq_sql import ingest, match
+from logiq_sql.cli import main
 from logiq_sql.core import sql
 from logiq_sql.core.sql import bind, tables_read
 from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
@@ -247,8 +248,6 @@ def test_the_cache_can_be_turned_off(matched, monkeypatch):
 
 
 def test_the_cache_command_reports_the_size_and_clears(matched, capsys):
-    from logiq_sql.cli import main
-
     assert main(["cache", "--db", str(matched)]) == 0
     rows = int(capsys.readouterr().out.split(": ", 1)[1].split(" rows")[0].replace(",", ""))
     with cache_of(matched) as con:
@@ -271,8 +270,6 @@ def test_the_cache_is_a_file_of_its_own_beside_the_file(matched, tmp_path, capsy
     # a file moved without its cache matches the same, from scratch
     alone = tmp_path / "alone.duckdb"
     shutil.copyfile(matched, alone)
-    from logiq_sql.cli import main
-
     assert main(["cache", "--db", str(alone)]) == 0 and not step_cache.path_of(alone).exists()
     assert ": none (" in capsys.readouterr().out
     result = match(alone, scenarios=["follower_vehicle"], overrides={"min_scenario_duration": "3sec"})
