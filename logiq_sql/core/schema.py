@@ -226,7 +226,8 @@ DEFAULT_SIZE_M: dict[str, tuple[float, float]] = {
 
 TRACK_LANES = Table(
     "track_lanes",
-    "Every lane within 3 m of every track row (shapely, at ingest); scenarios apply their own tolerance.",
+    "Every lane within 3 m of every track row (the lane look-up at ingest, docs/localisation.md); scenarios apply "
+    "their own tolerance.",
     (
         Column("drive_id", S, "Drive.", False),
         Column("actor_id", S, "Actor.", False),
@@ -237,8 +238,15 @@ TRACK_LANES = Table(
                "Actor heading minus lane direction at the nearest centre-line point, in (-pi, pi].", False),
     ),
 )
-STORED_TRACK_LANES = with_keys(TRACK_LANES, TRACK_KEYS, "Stored in (drive, actor_id, frame) order, with the "
-                                                       "integer keys of its track row.")
+# the lane relations/actor_lanes.sql picks for a track row, marked at ingest so that no query ranks a row's lanes
+BEST_LANE = Column("best_lane", B, "True on the track row's best lane, false on its others: of its lanes within 90 "
+                                   "degrees of its heading (abs(heading_diff_rad) < pi/2), the nearest (dist_m; 0 "
+                                   "inside), then the best aligned (least abs(heading_diff_rad)), then the smallest "
+                                   "lane_id. Marked at ingest; a scenario's actor lane is this lane when dist_m is "
+                                   "within its lane tolerance (relations/actor_lanes.sql).")
+STORED_TRACK_LANES = Table(TRACK_LANES.name, f"{TRACK_LANES.doc} Stored in (drive, actor_id, frame) order, with the "
+                           "integer keys of its track row and its best lane marked.",
+                           (*TRACK_LANES.columns, *TRACK_KEYS, BEST_LANE))
 LOCALISATION_RANGE_M = 3.0
 # tables whose rows belong to one drive: replaced together when the drive is ingested again or rejected
 DRIVE_TABLE_NAMES = ("tracks", "track_lanes", "traffic_light_states", "drive_inputs")

@@ -3,7 +3,8 @@
 For every track row of a moving kind (static kinds such as cones are skipped), every lane polygon within
 ``LOCALISATION_RANGE_M`` (3 m) of the box centre is kept with its distance (0 inside) and the heading difference
 to the lane direction: the direction of the centre-line segment at the point's arc length along the centre line.
-Scenarios then pick lanes with their own ``lane_calculation_tolerance_length`` in SQL
+Each row's best lane is marked (``best_lane``: of its lanes within 90 degrees of its heading, the nearest, then the
+best aligned, then the smallest id); scenarios apply their own ``lane_calculation_tolerance_length`` to it in SQL
 (``queries/relations/actor_lanes.sql``). docs/localisation.md gives the formulas.
 
 The numbers are those of GEOS (through shapely) computed the same way, operation for operation:
@@ -312,6 +313,29 @@ def _locate(x, y, heading, start, reach, grid, cell_first, cell_lanes, box, open
     return n, len(x)
 
 
+@_compiled
+def _best_lanes(row, rank, dist, diff):
+    """For pairs grouped by row (each row's pairs consecutive): true at each row's best lane, the least by
+    (dist, |diff|, rank) of its pairs with |diff| < pi/2, as actor_lanes ranked them in SQL; false elsewhere."""
+    best = np.zeros(len(row), dtype=np.bool_)
+    half_pi = math.pi / 2
+    start = 0
+    while start < len(row):
+        end = start
+        pick = -1
+        while end < len(row) and row[end] == row[start]:
+            if abs(diff[end]) < half_pi and (
+                    pick < 0 or dist[end] < dist[pick] or (dist[end] == dist[pick] and (
+                        abs(diff[end]) < abs(diff[pick]) or (abs(diff[end]) == abs(diff[pick])
+                                                             and rank[end] < rank[pick])))):
+                pick = end
+            end += 1
+        if pick >= 0:
+            best[pick] = True
+        start = end
+    return best
+
+
 def locate(tracks: pl.DataFrame, lanes: pl.DataFrame, index: LaneIndex | None = None) -> pl.DataFrame:
     """Rows of ``track_lanes`` for ``tracks`` (drives on one map) against ``lanes`` (that map)."""
     return locate_maps([(tracks, lanes, index)])
@@ -355,11 +379,11 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
                                                               for idx, lanes, index in maps)
             if len(found) and not lanes.is_empty()]
     keys = [k.name for k in schema.TRACK_KEYS if k.name in rows.column_names]
-    names = [*schema.TRACK_LANES.column_names, *keys]
+    names = [*schema.TRACK_LANES.column_names, *keys, schema.BEST_LANE.name]
     if not work:
         return pa.Table.from_pylist([], schema=pa.schema(
-            [(c, pa.string() if c in ("drive_id", "actor_id", "lane_id") else
-              pa.int64() if c == "frame" or c in keys else pa.float64()) for c in names]))
+            [(c, pa.string() if c in ("drive_id", "actor_id", "lane_id") else pa.bool_() if c == schema.BEST_LANE.name
+              else pa.int64() if c == "frame" or c in keys else pa.float64()) for c in names]))
     x, y, heading = (rows[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))
 
     def chunk_lanes(task) -> tuple[np.ndarray, ...]:
@@ -377,6 +401,9 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
                  zip(work, indexes, first_lane[:-1], strict=True) for start in range(0, len(idx), size)]
         row, lane, dist, diff = (np.concatenate(a) for a in zip(*pool.map(chunk_lanes, tasks), strict=True))
     lane_ids = pl.concat([index.lane_ids for index in indexes]).cast(pl.String).to_arrow().cast(pa.string())
+    # each lane's place in lane_id order (byte order, as DuckDB sorts strings): the last tie-break of the best lane
+    rank = np.empty(len(lane_ids), dtype=np.int64)
+    rank[pc.sort_indices(lane_ids).to_numpy()] = np.arange(len(lane_ids))
     at = pa.array(row.astype(np.int32, copy=False))  # a batch holds far fewer than 2^31 rows
     columns = {
         "drive_id": _strings_of(rows, "drive_id", ("drive_key",), row, at),
@@ -384,6 +411,7 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
         "frame": rows["frame"].take(at),
         "lane_id": pa.DictionaryArray.from_arrays(pa.array(lane.astype(np.int32)), lane_ids),
         "dist_m": pa.array(dist), "heading_diff_rad": pa.array(diff),
+        schema.BEST_LANE.name: pa.array(_best_lanes(row, rank[lane], dist, diff)),
     } | {k: rows[k].take(at) for k in keys}
     return pa.table([columns[c] for c in names], names=names)
 

@@ -99,6 +99,11 @@ def attach(con: duckdb.DuckDBPyConnection, folder: str | Path) -> None:
         if any(files.rglob("*.parquet")):
             source = (f"read_parquet({sql_literal(str(files) + '/**/*.parquet')}, hive_partitioning = true, "
                       f"hive_types = {{'{partition_key(table)}': varchar}})")
+            have = {r[0] for r in con.execute(f"describe select * from {source}").fetchall()}
+            if missing := [c for c in table.column_names if c not in have]:
+                raise InputError(f"{arg('dataset', folder)}: {table.name} has no column {', '.join(missing)}: the "
+                                 "dataset was written by an earlier logiq_sql. Fix: ingest its inputs again with "
+                                 "`logiq-sql ingest FORMAT PATHS --dataset DIR` into a new folder.")
         else:  # nothing of this table yet (no traffic lights, say): an empty view of the right columns
             source = ("(select " + ", ".join(f"cast(null as {schema.duckdb_type(c.dtype)}) as {c.name}"
                                             for c in table.columns) + " where false)")

@@ -255,6 +255,7 @@ def create_all(con: duckdb.DuckDBPyConnection) -> None:
             {"i": STEP_CACHE.name, "p": STEP_CACHE_PREFIX}).fetchall():
         con.execute(f"drop table {name}")
     backfill_keys(con)
+    backfill_best_lanes(con)
     con.execute(DRIVES_VIEW)
     con.execute("comment on view drives is " + sql_literal(
         "Every drive that went in, accepted or rejected, with its match status over all scenarios run."))
@@ -285,6 +286,23 @@ def backfill_keys(con: duckdb.DuckDBPyConnection) -> None:
             update track_lanes as l set drive_key = t.drive_key, actor_key = t.actor_key, row_key = t.row_key
             from tracks as t
             where l.drive_key is null and l.drive_id = t.drive_id and l.actor_id = t.actor_id and l.frame = t.frame""")
+
+
+def backfill_best_lanes(con: duckdb.DuckDBPyConnection) -> None:
+    """A file written before ingest marked each track row's best lane gets it marked (schema.BEST_LANE, the order
+    relations/actor_lanes.sql ranked the lanes in before)."""
+    if not con.execute("select count(*) from (select 1 from track_lanes where best_lane is null limit 1)").fetchone()[0]:
+        return
+    con.execute("""
+        update track_lanes as l set best_lane = coalesce(r.rank_in_row = 1, false)
+        from (
+            select drive_key, row_key, lane_id, case when abs(heading_diff_rad) < pi() / 2 then row_number() over (
+                partition by drive_key, row_key, abs(heading_diff_rad) < pi() / 2
+                order by dist_m, abs(heading_diff_rad), lane_id) end as rank_in_row
+            from track_lanes
+            where best_lane is null
+        ) as r
+        where l.best_lane is null and l.drive_key = r.drive_key and l.row_key = r.row_key and l.lane_id = r.lane_id""")
 
 
 def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> None:
