@@ -76,7 +76,7 @@ RELATION_INPUTS = {
                   "cast(null as bigint) as lane_run, t.drive_key, t.actor_key as ego_key "
                   "from pair_tracks as t inner join replay_windows as w on t.drive_id = w.drive_id "
                   "and t.actor_id = w.ego_id"),
-    "actor_lanes": ("select drive_key, actor_key, drive_id, actor_id, frame, cast(null as varchar) as lane_id, "
+    "actor_lanes": ("select drive_key, actor_key, frame, cast(null as varchar) as lane_id, "
                     "cast(null as double) as lane_dist_m from pair_tracks where false"),
     "lane_neighbours": ("select cast(null as varchar) as map_id, cast(null as varchar) as lane_id, "
                         "cast(null as varchar) as near_lane_id, cast(null as varchar) as side where false"),

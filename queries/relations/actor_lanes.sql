@@ -1,6 +1,6 @@
 -- relations: actor_lanes
--- grain: one row per (drive_id, actor_id, frame) of the run's drives that lies in a lane: its best lane, with
---        the row's integer keys (drive_key, actor_key)
+-- grain: one row per (drive_key, actor_key, frame) of the run's drives that lies in a lane: its best lane (the
+--        integer keys of the row's drive and actor; tracks has their ids)
 -- reads: track_lanes (every lane within 3 m of each track row, from the look-up at ingest), run_drives
 -- params: $lane_calculation_tolerance_length_m
 --
@@ -14,8 +14,6 @@
 select
     drive_key,
     actor_key,
-    drive_id,
-    actor_id,
     frame,
     lane_id,
     dist_m as lane_dist_m
