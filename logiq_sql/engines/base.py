@@ -47,8 +47,9 @@ class Engine:
 
     name = "engine"
     owners: tuple[str, ...] = ()  # the scenarios the next steps are run for (the step cache's entries)
-    # the next steps scan the batch's per-drive input tables several times over (the relations and junctions):
-    # the DuckDB engine copies the batch's rows before such a step runs, where other steps read them through views
+    # the next steps are the shared ones (the relations and junctions): they scan the batch's per-drive input tables
+    # several times over, so the DuckDB engine copies the batch's rows before such a step runs, where other steps
+    # read them through views; and the step cache keeps each of them, however cheap (StepCache.record's ``keep``)
     wide: bool = False
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:

@@ -63,7 +63,7 @@ class DuckEngine(Engine):
         self._keys[table] = key
         if key is not None:
             self.cache.record(self.owners, step, table, key, computed=True,
-                              compute_s=time.process_time() - started)
+                              compute_s=time.process_time() - started, keep=self.wide)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         text = query_text(relative) + (f"\n-- only the rows where {kept}" if kept else "")  # other rows, other key

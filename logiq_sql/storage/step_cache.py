@@ -280,12 +280,15 @@ class StepCache:
         return True
 
     def record(self, owners: tuple[str, ...], step: str, table: str, key: str, computed: bool,
-               compute_s: float = 0.0) -> None:
+               compute_s: float = 0.0, keep: bool = False) -> None:
         """After ``table`` was computed in ``compute_s`` seconds (``computed``) or loaded: the batch's rows kept
         under ``key`` and each owner's entry for the step pointed at it; rows no entry refers to any more go.
         A computed step is kept only when computing it took at least what keeping as many cells has cost so far
         in this run, both in CPU seconds of the process (steadier than wall time on a shared machine; writing a
-        wide per-frame table can cost more than its query), unless ``keep_all``."""
+        wide per-frame table can cost more than its query), unless ``keep_all`` or ``keep``: a shared step
+        (relations, junctions) is always kept, since a re-match that recomputes one, however cheap, first copies
+        the batch's inputs for it, though the steps reading it come from the cache (actor_lanes: 14 s of a 59 s
+        re-match at tier L)."""
         if not (self._usable and owners):
             self.uncached += 1
             return
@@ -310,7 +313,7 @@ class StepCache:
         if write:
             (rows,) = con.execute(f"select count(*) from temp.main.{table}").fetchall()[0]
             cells = rows * len(columns)
-            if (not self.keep_all and self._cells >= CALIBRATION_CELLS
+            if (not (self.keep_all or keep) and self._cells >= CALIBRATION_CELLS
                     and compute_s < cells * self._write_s / self._cells):
                 self.not_kept += 1
                 return

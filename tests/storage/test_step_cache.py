@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import duckdb
 import pytest
@@ -287,3 +288,22 @@ def test_a_file_that_kept_its_cache_inside_drops_it_when_next_written(matched):
     with duckdb.connect(str(matched), read_only=True) as con:
         assert con.execute("select count(*) from duckdb_tables() where table_name like 'step_cache%'"
                            ).fetchall()[0][0] == 0
+
+
+def test_shared_steps_are_kept_however_cheap_and_others_only_when_dearer_than_keeping(ingested, tmp_path, monkeypatch):
+    # keeping rows made to look dear (1000 CPU s per write): in the default mode no step is cheap enough to be
+    # kept, except the shared ones (egos, relations, junctions), which a re-match would otherwise recompute for
+    # want of their rows though every step reading them comes from the cache
+    monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "auto")
+    monkeypatch.setattr(step_cache, "CALIBRATION_CELLS", 1)
+    clock = iter(range(0, 10**9, 1000))
+    monkeypatch.setattr(step_cache, "time", SimpleNamespace(process_time=lambda: float(next(clock))))
+    db = ingested(tmp_path / "x.duckdb", "sumo", [ROOT / "tests/data/sumo/junction_s1"])
+    result = match(db, scenarios=["unprotected_left_turn_with_yield_and_traffic_light"])
+    assert "cheaper to recompute than to keep" in result.cache
+    with cache_of(db) as con:
+        kept = {r[0] for r in con.execute("select distinct split_part(step, ' ', 1) from cache.step_cache").fetchall()}
+    shared = {"egos", "actor_lanes", "ego_lanes", "ego_road", "relations", "actor_paths", "passages",
+              "junction_frames", "crossing_pairs", "encroachments"}
+    assert shared <= kept, shared - kept
+    assert not {"scenario_frames", "phase_1", "phase_runs", "scenario_match"} & kept, kept
