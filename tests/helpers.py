@@ -9,6 +9,14 @@ import polars as pl
 
 from logiq_sql.ingestion.ingest import ingest
 
+DATA = Path(__file__).resolve().parent / "data"
+# one bundled drive of each kind of map, as ``ingested.steps`` takes them: a motorway with lane changes (NGSIM), a
+# junction with turns (SUMO), and the real ego logs of AV2 and nuScenes with their HD maps
+EVERY_MAP = (("commonroad", [DATA / "commonroad_ngsim/scenarios_2018b/USA_US101-22_1_T-1.xml.gz"]),
+             ("sumo", [DATA / "sumo/junction_s1"]),
+             ("av2", [DATA / "av2"]),
+             ("scenarionet", [DATA / "nuscenes_mini_scenarionet"]))
+
 LANE_W = 3.5
 ROAD_LEN = 2000.0
 

@@ -14,8 +14,7 @@ import pytest
 from logiq_sql.core.errors import InputError
 from logiq_sql.ingestion.localise import _best_lanes
 from logiq_sql.storage import dataset, db
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.helpers import EVERY_MAP
 
 # the rows' lanes ranked by DuckDB's own sort: the independent reading of which lane is best
 RANKED = """
@@ -28,12 +27,7 @@ RANKED = """
 
 @pytest.fixture(scope="module")
 def drives(tmp_path_factory, ingested) -> Path:
-    folder = tmp_path_factory.mktemp("best_lane")
-    return ingested.steps(folder / "x.duckdb",
-                          ("commonroad", [ROOT / "tests/data/commonroad_ngsim/scenarios_2018b/USA_US101-22_1_T-1.xml.gz"]),
-                          ("sumo", [ROOT / "tests/data/sumo/junction_s1"]),
-                          ("av2", [ROOT / "tests/data/av2"]),
-                          ("scenarionet", [ROOT / "tests/data/nuscenes_mini_scenarionet"]))
+    return ingested.steps(tmp_path_factory.mktemp("best_lane") / "x.duckdb", *EVERY_MAP)
 
 
 def test_the_marked_lane_is_the_one_duckdb_ranks_first_on_every_map(drives):

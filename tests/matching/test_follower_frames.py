@@ -13,9 +13,8 @@ from logiq_sql.core.sql import bind, materialise, query_text
 from logiq_sql.matching.runner import kept_rows
 from logiq_sql.spec.plan import RELATION_STEPS, parse_ego, resolve_scenarios, run_values
 from logiq_sql.storage import db
+from tests.helpers import EVERY_MAP
 
-ROOT = Path(__file__).resolve().parents[2]
-NGSIM = ROOT / "tests/data/commonroad_ngsim/scenarios_2018b"
 FRAMES = "phases/follower_vehicle_frames.sql"
 PHASE = "phases/follower_vehicle.sql"
 
@@ -23,12 +22,7 @@ PHASE = "phases/follower_vehicle.sql"
 @pytest.fixture(scope="module")
 def drives(tmp_path_factory, ingested) -> Path:
     # a motorway with lane changes and a junction with turns: the lanes the ego left and the lanes leaving its road
-    folder = tmp_path_factory.mktemp("follower_frames")
-    return ingested.steps(folder / "x.duckdb",
-                          ("commonroad", [NGSIM / "USA_US101-22_1_T-1.xml.gz"]),
-                          ("sumo", [ROOT / "tests/data/sumo/junction_s1"]),
-                          ("av2", [ROOT / "tests/data/av2"]),
-                          ("scenarionet", [ROOT / "tests/data/nuscenes_mini_scenarionet"]))
+    return ingested.steps(tmp_path_factory.mktemp("follower_frames") / "x.duckdb", *EVERY_MAP)
 
 
 def test_a_match_keeps_the_follower_frames_where_may_hold_and_every_phase_row_where_holds():
