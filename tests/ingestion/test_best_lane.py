@@ -13,6 +13,7 @@ import pytest
 
 from logiq_sql.core.errors import InputError
 from logiq_sql.ingestion.localise import _best_lanes
+from logiq_sql.matching.explain import explain
 from logiq_sql.storage import dataset, db
 from tests.helpers import EVERY_MAP
 
@@ -97,3 +98,16 @@ def test_a_dataset_without_the_mark_is_refused_by_name(drives, tmp_path):
             Path(f"{part}.old").rename(part)
     with duckdb.connect() as con, pytest.raises(InputError, match=r"track_lanes has no column best_lane.*ingest"):
         dataset.attach(con, folder)
+
+
+def test_explain_on_a_file_without_the_mark_names_the_fix(drives, tmp_path):
+    # read-only, explain cannot add the column: it says which run does, and works once one has
+    old = tmp_path / "old.duckdb"
+    old.write_bytes(drives.read_bytes())
+    with duckdb.connect(str(old)) as con:
+        con.execute("alter table track_lanes drop column best_lane")
+        drive, ego = con.execute("select drive_id, actor_id from tracks where drive_id like 'USA%' limit 1").fetchone()
+    with pytest.raises(InputError, match=r"no column track_lanes\.best_lane\. Fix: .*logiq-sql match --db"):
+        explain(old, "follower_vehicle", drive, ego)
+    db.connect(old).close()  # what a run that writes the file does first
+    assert explain(old, "follower_vehicle", drive, ego) is not None
