@@ -50,7 +50,7 @@ class Engine:
     # the next steps are the shared ones (the relations and junctions): they scan the batch's per-drive input tables
     # several times over, so the DuckDB engine copies the batch's rows before such a step runs, where other steps
     # read them through views; and the step cache keeps each of them, however cheap (StepCache.record's ``keep``)
-    wide: bool = False
+    shared: bool = False
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         """queries/<relative> with ``values`` bound, kept as ``table``; ``kept``: only its rows whose boolean column

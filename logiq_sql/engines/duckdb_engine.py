@@ -63,7 +63,7 @@ class DuckEngine(Engine):
         self._keys[table] = key
         if key is not None:
             self.cache.record(self.owners, step, table, key, computed=True,
-                              compute_s=time.process_time() - started, keep=self.wide)
+                              compute_s=time.process_time() - started, keep=self.shared)
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         text = query_text(relative) + (f"\n-- only the rows where {kept}" if kept else "")  # other rows, other key
@@ -124,9 +124,9 @@ class DuckEngine(Engine):
             self.cache.start_batch()
         # a temp view shadows the stored table of the same name, so every query of the batch reads the batch's
         # rows: a batch then costs what its drives hold, not what the whole file holds (queries reading the whole
-        # track_lanes per batch made matching grow with batches x file size). Views, copied only when a step that
-        # reads them widely runs (``wide``): a re-match whose steps come from the step cache, or that reruns only
-        # steps reading a few of the batch's rows, copies nothing
+        # track_lanes per batch made matching grow with batches x file size). Views, copied only when a shared step,
+        # which reads them widely, runs (``shared``): a re-match whose steps come from the step cache, or that reruns
+        # only steps reading a few of the batch's rows, copies nothing
         stored = stored_schema(self.con)
         (others,) = self.con.execute(f"select count(*) from {stored}.drive_inputs where status = 'ingested' and "
                                      "drive_id not in (select drive_id from run_drives)").fetchall()[0]
@@ -138,9 +138,9 @@ class DuckEngine(Engine):
         self._narrowed = set(PARTITIONED_BY_DRIVE)
 
     def _copy_inputs(self, reads) -> None:
-        """With ``wide``: the batch's rows of the per-drive input tables in ``reads`` copied into temp tables
-        (once per batch), since such steps scan them several times over."""
-        if not self.wide:
+        """While the shared steps run (``shared``): the batch's rows of the per-drive input tables in ``reads``
+        copied into temp tables (once per batch), since such steps scan them several times over."""
+        if not self.shared:
             return
         stored = stored_schema(self.con)
         for table in self._narrowed & set(reads):

@@ -43,7 +43,7 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
     engine = as_engine(con)
     engine.owners = tuple(s.name for s in group)
     values = {**values, "relation_kinds_csv": ALL_KINDS_CSV if every_kind else relation_kinds_csv(group)}
-    engine.wide = True
+    engine.shared = True
     try:
         with stage("relations"):
             engine.materialise("egos", "relations/egos.sql", values)
@@ -55,7 +55,7 @@ def prepare_relations(con: duckdb.DuckDBPyConnection | Engine, group: list[Scena
                     engine.materialise(table, rel, values)
                 engine.derive("encroachments", encroachments, ENCROACHMENT_READS, ENCROACHMENTS_SCHEMA)
     finally:
-        engine.wide = False
+        engine.shared = False
 
 
 def shared_phase_steps(group: list[Scenario], values: dict[str, dict[str, object]]) -> frozenset[tuple[str, tuple]]:

@@ -215,8 +215,8 @@ def test_select_drives_narrows_the_per_drive_tables_to_the_batch(drives):
         con.close()
 
 
-def test_the_duckdb_engine_copies_a_batch_s_inputs_only_before_wide_steps(drives):
-    """A batch's per-drive inputs are temp views of its rows; only a step run with ``wide`` (the relation and
+def test_the_duckdb_engine_copies_a_batch_s_inputs_only_before_shared_steps(drives):
+    """A batch's per-drive inputs are temp views of its rows; only a step run with ``shared`` (the relation and
     junction steps, ``prepare_relations``) copies the ones it reads into temp tables first: a re-match whose
     computed steps read a few rows copies nothing."""
     real, _ = drives
@@ -229,9 +229,9 @@ def test_the_duckdb_engine_copies_a_batch_s_inputs_only_before_wide_steps(drives
         engine = DuckEngine(con)
         engine.select_drives()
         values = {"ego_mode": "all", "ego_every": 1, "ego_actor_ids_csv": ",", "ego_kinds_csv": ",vehicle,"}
-        engine.materialise("egos", "relations/egos.sql", values)  # reads tracks, not wide
+        engine.materialise("egos", "relations/egos.sql", values)  # reads tracks, not a shared step
         assert dict(con.execute(kinds_sql).fetchall()) == {"tracks": "view", "track_lanes": "view"}
-        engine.wide = True
+        engine.shared = True
         engine.materialise("egos", "relations/egos.sql", values)
         assert dict(con.execute(kinds_sql).fetchall()) == {"tracks": "table", "track_lanes": "view"}
         assert engine.frame("select distinct drive_id from tracks")["drive_id"].to_list() == ["scene-0103"]
