@@ -324,10 +324,8 @@ def _best_lanes(row, rank, dist, diff):
         end = start
         pick = -1
         while end < len(row) and row[end] == row[start]:
-            if abs(diff[end]) < half_pi and (
-                    pick < 0 or dist[end] < dist[pick] or (dist[end] == dist[pick] and (
-                        abs(diff[end]) < abs(diff[pick]) or (abs(diff[end]) == abs(diff[pick])
-                                                             and rank[end] < rank[pick])))):
+            if abs(diff[end]) < half_pi and (pick < 0 or (dist[end], abs(diff[end]), rank[end])
+                                             < (dist[pick], abs(diff[pick]), rank[pick])):
                 pick = end
             end += 1
         if pick >= 0:
