@@ -256,18 +256,10 @@ def select_run_drives(con: duckdb.DuckDBPyConnection, drives: list[str] | None) 
 
 
 def match_batches(con: duckdb.DuckDBPyConnection, ids: tuple[str, ...], batch_rows: int) -> list[list[str]]:
-    """``ids`` cut into consecutive batches of at most ``batch_rows`` track rows, or one drive each, in the order the
-    drives' rows are stored (the file's tracks table; drive_id order for a dataset's views): a batch's reads of
-    tracks and track_lanes then touch neighbouring row groups only. In drive_id order a batch's drives lay spread
-    over the file, and copying its rows cost 4-9x as much per row at tier L (benchmarks/README.md)."""
-    stored = con.execute("select count(*) from duckdb_tables() where database_name = current_database() "
-                         "and schema_name = 'main' and table_name = 'tracks' and not temporary").fetchall()[0][0]
-    first_row = ("left join (select drive_key, min(rowid) as first_row from main.tracks group by drive_key) as f "
-                 "on d.drive_key = f.drive_key" if stored else "cross join (select null as first_row) as f")
+    """``ids`` (sorted) cut into consecutive batches of at most ``batch_rows`` track rows, or one drive each."""
     with registered(con, "_batch_ids", pl.DataFrame({"drive_id": list(ids)}, schema={"drive_id": pl.String})):
-        sizes = con.sql(f"select d.drive_id, d.rows_read - d.rows_rejected as n from drive_inputs as d {first_row} "
-                        "where d.drive_id in (select drive_id from _batch_ids) "
-                        "order by f.first_row nulls last, d.drive_id").pl()
+        sizes = con.sql("select drive_id, rows_read - rows_rejected as n from drive_inputs "
+                        "where drive_id in (select drive_id from _batch_ids) order by drive_id").pl()
     return batches(sizes.iter_rows(), batch_rows)
 
 

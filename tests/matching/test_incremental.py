@@ -50,21 +50,6 @@ def first_run(tmp_path, first_run_once) -> Path:
     return db
 
 
-def test_batches_follow_the_order_the_drives_are_stored_in(tmp_path, ingested):
-    """A batch's drives are neighbours in the file (match_batches): LATER, ingested first, is stored first and so
-    matched first, although its drive_id sorts between FIRST's two."""
-    from logiq_sql.matching.match import match_batches
-
-    db = ingested.steps(tmp_path / "x.duckdb", ("commonroad", [LATER]), ("commonroad", FIRST))
-    with duckdb.connect(str(db), read_only=True) as con:
-        by_id = [r[0] for r in con.execute("select drive_id from drive_inputs order by drive_id").fetchall()]
-        stored = [r[0] for r in con.execute("select drive_id from tracks group by drive_id order by min(rowid)")
-                  .fetchall()]
-        assert stored != by_id and stored[0] == "USA_US101-24_1_T-1@2018b"
-        assert match_batches(con, tuple(by_id), 1) == [[d] for d in stored]
-        assert match_batches(con, tuple(by_id), 10**9) == [stored]
-
-
 def test_rerunning_the_same_drives_changes_nothing(first_run):
     before = snapshot(first_run)
     result = match(first_run, scenarios=SCENARIOS)
