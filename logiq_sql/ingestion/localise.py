@@ -379,9 +379,8 @@ def track_lanes_of(rows: pa.Table, maps: list[tuple[np.ndarray, pl.DataFrame, La
     keys = [k.name for k in schema.TRACK_KEYS if k.name in rows.column_names]
     names = [*schema.TRACK_LANES.column_names, *keys, schema.BEST_LANE.name]
     if not work:
-        return pa.Table.from_pylist([], schema=pa.schema(
-            [(c, pa.string() if c in ("drive_id", "actor_id", "lane_id") else pa.bool_() if c == schema.BEST_LANE.name
-              else pa.int64() if c == "frame" or c in keys else pa.float64()) for c in names]))
+        types = schema.STORED_TRACK_LANES.polars_schema
+        return pa.Table.from_pylist([], schema=pa.schema([(c, schema.arrow_type(types[c])) for c in names]))
     x, y, heading = (rows[c].to_numpy() for c in ("x_m", "y_m", "heading_rad"))
 
     def chunk_lanes(task) -> tuple[np.ndarray, ...]:
