@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import math
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from logiq_sql.core.errors import InputError, LogiqError, did_you_mean
 from logiq_sql.core.formats import FORMATS
 from logiq_sql.core.sql import query_text, recount_coverage, registered
 from logiq_sql.core.timing import stage
-from logiq_sql.ingestion.localise import build_indexes, track_lanes_of
+from logiq_sql.ingestion.localise import WORKERS, build_indexes, track_lanes_of
 from logiq_sql.ingestion.readers.base import DriveData
 from logiq_sql.storage import db, step_cache, tables
 from logiq_sql.storage.store import PERSISTED
@@ -462,13 +463,33 @@ KINEMATICS = ("heading_rad", "speed_mps", "accel_mps2")  # what staging/tracks.s
 def _staged(con: duckdb.DuckDBPyConnection, raw: pa.Table) -> pa.Table:
     """The stored tracks of a batch's rows with their keys (``with_keys``): their own columns, with the kinematics
     staging/tracks.sql completes over their order. The query returns a row for each row of ``raw`` in its order
-    (its windows run over that order); its row_key column checks that."""
-    with registered(con, "tracks_raw", raw):
-        done = con.sql(query_text("staging/tracks.sql")).to_arrow_table().combine_chunks()
+    (its windows run over that order); its row_key column checks that.
+
+    DuckDB runs windows over an empty ``OVER ()`` on one thread, so the batch is cut at track boundaries into a
+    part per core (``kinematics_parts``), each run on a cursor of its own at the same time: the query looks at no
+    row of another track, so the parts give the rows the whole batch gives."""
+    parts = kinematics_parts(raw["track_no"].to_numpy(), WORKERS)
+
+    def run(part: pa.Table) -> pa.Table:
+        with con.cursor() as cur, registered(cur, "tracks_raw", part):
+            return cur.sql(query_text("staging/tracks.sql")).to_arrow_table()
+    with ThreadPoolExecutor(len(parts)) as pool:
+        done = pa.concat_tables(pool.map(run, [raw.slice(a, b - a) for a, b in parts])).combine_chunks()
     if not done["row_key"].equals(raw["row_key"]):
         raise RuntimeError("staging/tracks.sql returned the rows out of their order: not stored.")
     return pa.table([done[c] if c in KINEMATICS else raw[c] for c in schema.STORED_TRACKS.column_names],
                     names=list(schema.STORED_TRACKS.column_names))
+
+
+def kinematics_parts(track_no: np.ndarray, parts: int) -> list[tuple[int, int]]:
+    """``(start, end)`` of up to ``parts`` runs of rows of about equal length that cover ``track_no`` in order,
+    each cut where the track changes (a track is never split)."""
+    n = len(track_no)
+    starts = np.flatnonzero(np.diff(track_no)) + 1  # the rows where a new track begins
+    cuts = np.unique(starts[np.searchsorted(starts, [n * k // parts for k in range(1, parts)])
+                            .clip(max=len(starts) - 1)]) if len(starts) else np.array([], dtype=np.int64)
+    bounds = [0, *cuts.tolist(), n]
+    return [(a, b) for a, b in zip(bounds, bounds[1:]) if b > a] or [(0, n)]
 
 
 def _map_rows(accepted: list, maps: dict[str, DriveData], held: dict[str, tuple]) -> list:

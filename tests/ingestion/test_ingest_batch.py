@@ -311,3 +311,34 @@ def test_ingest_stores_the_same_rows_whatever_the_order_of_the_file(tmp_path):
     assert stored["ordered"]["track_lanes"].height > 0
     for table in ("tracks", "track_lanes"):
         assert stored["ordered"][table].equals(stored["shuffled"][table])
+
+
+def test_the_kinematics_parts_cut_only_where_the_track_changes():
+    track_no = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2, 3])
+    assert ingestion.kinematics_parts(track_no, 2) == [(0, 5), (5, 10)]
+    assert ingestion.kinematics_parts(track_no, 3) == [(0, 3), (3, 9), (9, 10)]
+    assert ingestion.kinematics_parts(np.zeros(10, dtype=np.int64), 4) == [(0, 10)]  # one track: one part
+    assert ingestion.kinematics_parts(np.arange(4), 8) == [(0, 1), (1, 2), (2, 3), (3, 4)]
+    assert ingestion.kinematics_parts(np.array([], dtype=np.int64), 2) == [(0, 0)]
+
+
+@pytest.mark.parametrize("parts", [2, 3, 7])
+def test_the_kinematics_in_parts_give_what_the_whole_batch_gives(tmp_path, monkeypatch, parts):
+    """staging/tracks.sql runs on a part of the batch per core (``_staged``), cut where a track changes: the stored
+    tracks are those of the batch in one part. Each actor "a" stands still before it moves (its heading comes from
+    rows after it) and each "b" is one sample long, so a cut inside a track would change them."""
+    t = times(30)
+    standing = np.where(t < 1.0, 50.0, 50.0 + 8 * (t - 1.0))
+    tracks = pl.concat([pl.concat([actor("ego", t, 100 + 10 * t, Y1, is_ego=True, drive_id=f"d{i}"),
+                                   actor("a", t, standing, Y1 + 0.1 * i, drive_id=f"d{i}"),
+                                   actor("b", t[:1], np.array([20.0]), Y1, drive_id=f"d{i}")]) for i in range(5)])
+    folder = write(tmp_path / "in", tracks, {f"d{i}": 0.1 for i in range(5)})
+    stored = {}
+    for n in (1, parts):
+        monkeypatch.setattr(ingestion, "WORKERS", n)
+        db = tmp_path / f"{n}.duckdb"
+        ingest("parquet", [folder], db)
+        with duckdb.connect(str(db), read_only=True) as con:
+            stored[n] = con.sql("select * from tracks order by all").pl()
+    assert stored[1].height == 5 * (2 * len(t) + 1) and stored[1]["heading_rad"].null_count() == 0
+    assert stored[1].equals(stored[parts])
