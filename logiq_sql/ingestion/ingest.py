@@ -406,7 +406,10 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
     ids = pl.DataFrame({"drive_id": [d.drive_id for d, *_ in accepted]})
     keys = drive_keys(con, ids["drive_id"].to_list())
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
-    map_ids = pl.DataFrame({"map_id": list(maps)}, schema={"map_id": pl.String})
+    # a map an earlier batch of this run wrote from the same lanes frame (the Parquet reader gives every drive of a
+    # map the same one: ``held``) is in the file as it is: not deleted and written again for every batch
+    rewritten = {m: d for m, d in maps.items() if m not in held or held[m][0] is not d.lanes}
+    map_ids = pl.DataFrame({"map_id": list(rewritten)}, schema={"map_id": pl.String})
     # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
     stale = ("select drive_id from _drive_ids union all select drive_id from drive_inputs "
              "where map_id in (select map_id from _map_ids)")
@@ -415,17 +418,22 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
     con.execute("begin transaction")
     try:
         with registered(con, "_drive_ids", ids), registered(con, "_map_ids", map_ids):
-            for table in schema.DRIVE_TABLE_NAMES:
-                con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
-            # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
-            con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
-            _drop_outputs(con, ids["drive_id"].to_list())
+            # a drive has rows in the file only with its drive_inputs row (written in one transaction, or
+            # rejected by _reject, which writes one): drives new to the file have nothing to delete, and the deletes
+            # would scan the drive_id of every stored row once per batch
+            if con.execute("select count(*) from drive_inputs where drive_id in (select drive_id from _drive_ids)"
+                           ).fetchall()[0][0]:
+                for table in schema.DRIVE_TABLE_NAMES:
+                    con.execute(f"delete from {table} where drive_id in (select drive_id from _drive_ids)")
+                # new rows for a drive: its earlier matches and match status no longer hold; the next match reruns it
+                con.execute("delete from drive_scenarios where drive_id in (select drive_id from _drive_ids)")
+                _drop_outputs(con, ids["drive_id"].to_list())
             step_cache.set_versions(con, stale)
             for table in schema.MAP_TABLE_NAMES:
                 con.execute(f"delete from {table} where map_id in (select map_id from _map_ids)")
         # one insert per table for the whole batch (one per map or drive paid DuckDB's per-statement cost each time)
         for table in schema.MAP_TABLE_NAMES:
-            _insert_all(con, table, [getattr(drive, table) for drive in maps.values()])
+            _insert_all(con, table, [getattr(drive, table) for drive in rewritten.values()])
         _insert_all(con, "traffic_light_states", [drive.traffic_light_states for drive, *_ in accepted])
         # one ordered pass over the batch: its rows (each drive's sorted by actor_id, frame: clean_batch) with their
         # keys, the kinematics of staging/tracks.sql evaluated once over that order, the result stored as tracks and

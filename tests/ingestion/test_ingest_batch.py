@@ -342,3 +342,32 @@ def test_the_kinematics_in_parts_give_what_the_whole_batch_gives(tmp_path, monke
             stored[n] = con.sql("select * from tracks order by all").pl()
     assert stored[1].height == 5 * (2 * len(t) + 1) and stored[1]["heading_rad"].null_count() == 0
     assert stored[1].equals(stored[parts])
+
+
+def test_a_map_is_written_once_per_run_and_replaced_by_the_next_run(tmp_path, monkeypatch):
+    """Drives of one map in many batches store each lane once, as one batch does; a later run that reads the map
+    with a lane changed replaces it."""
+    tracks = pl.concat([scene(f"d{i}") for i in range(4)])
+    folder = write(tmp_path / "in", tracks, {f"d{i}": 0.1 for i in range(4)})
+
+    def lanes(db: Path) -> list[tuple]:
+        with duckdb.connect(str(db), read_only=True) as con:
+            return con.sql("select map_id, lane_id, polygon_wkt from lanes order by all").fetchall()
+    ingest("parquet", [folder], tmp_path / "one.duckdb")
+    monkeypatch.setattr(ingestion, "BATCH_ROWS", 1)  # every drive a batch of its own
+    ingest("parquet", [folder], tmp_path / "many.duckdb")
+    assert lanes(tmp_path / "many.duckdb") == lanes(tmp_path / "one.duckdb")
+    assert len(lanes(tmp_path / "many.duckdb")) == len(TWO_LANES)
+
+    moved = pl.DataFrame(TWO_LANES).with_columns(
+        polygon_wkt=pl.when(pl.col("lane_id") == "L1").then(pl.lit("POLYGON ((0 0, 500 0, 500 3.5, 0 3.5, 0 0))"))
+        .otherwise(pl.col("polygon_wkt")))
+    moved.write_parquet(folder / "lanes.parquet")
+    ingest("parquet", [folder], tmp_path / "many.duckdb")
+    again = lanes(tmp_path / "many.duckdb")
+    assert len(again) == len(TWO_LANES)
+    assert ("road", "L1", "POLYGON ((0 0, 500 0, 500 3.5, 0 3.5, 0 0))") in again
+    # in one run, a second folder with the same map changed: the map as the later folder gives it
+    first = write(tmp_path / "first", pl.concat([scene(f"e{i}") for i in range(2)]), {"e0": 0.1, "e1": 0.1})
+    ingest("parquet", [first, folder], tmp_path / "two.duckdb")
+    assert lanes(tmp_path / "two.duckdb") == again
