@@ -36,7 +36,6 @@ Written: benchmarks/results/<TIER>_components.json and .md.
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -46,7 +45,7 @@ import duckdb
 import numpy as np
 import polars as pl
 
-from benchmarks.tiers import FLOOR_SQL, RESULTS, WORK
+from benchmarks.tiers import FLOOR_SQL, WORK, write_results
 from logiq_sql.core.timing import cpu_seconds
 from logiq_sql.ingestion.ingest import ingest
 from logiq_sql.ingestion.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
@@ -225,10 +224,7 @@ def main(argv: list[str] | None = None) -> dict:
                   f"(CPU {r['cpu_ratio_to_parts']:.2f}x). With the lanes write among them "
                   f"({more['seconds']:.2f} s, CPU {more['cpu_seconds']:.2f} s): "
                   f"**{r['ratio_to_parts_with_lanes_write']:.2f}x** (CPU {r['cpu_ratio_to_parts_with_lanes_write']:.2f}x)."]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.tier}_components.json").write_text(json.dumps(report, indent=2))
-    (RESULTS / f"{args.tier}_components.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_results(f"{args.tier}_components", report, "\n".join(lines))
     return report
 
 

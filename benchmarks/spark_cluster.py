@@ -26,7 +26,6 @@ Written: benchmarks/results/<TIER>_spark.json and .md.
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing
 import platform
 import shutil
@@ -35,7 +34,7 @@ import time
 from pathlib import Path
 
 from benchmarks.cluster import ROOT, TreeCPU, match_in_child, project_zip, standalone
-from benchmarks.tiers import RESULTS, TIERS, WORK, outputs_against, prepare
+from benchmarks.tiers import TIERS, WORK, outputs_against, prepare, write_results
 from logiq_sql.core.timing import cpu_seconds
 from logiq_sql.ingestion.dataset_ingest import ingest_dataset
 from logiq_sql.ingestion.ingest import ingest
@@ -168,10 +167,7 @@ def main(argv: list[str] | None = None) -> dict:
                     print(f"{label}, {workers} worker(s): {run['seconds']:.1f} s", flush=True)
             finally:
                 cpu_tree.stop()
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.tier}_spark.json").write_text(json.dumps(report, indent=2))
-    (RESULTS / f"{args.tier}_spark.md").write_text(markdown(report))
-    print(markdown(report))
+    write_results(f"{args.tier}_spark", report, markdown(report))
     return report
 
 

@@ -25,7 +25,6 @@ and .md.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import tempfile
@@ -37,7 +36,7 @@ import sqlglot
 
 from benchmarks.cluster import project_zip, session, standalone
 from benchmarks.components import PARTS, timed
-from benchmarks.tiers import RESULTS, WORK
+from benchmarks.tiers import WORK, write_results
 from logiq_sql.core.sql import sql_literal
 
 CORES = 2  # DuckDB's threads, and the cluster's workers of one core each
@@ -150,10 +149,7 @@ def main(argv: list[str] | None = None) -> dict:
               f"Issue 32's target for a whole match: 1/{1 / TARGET:.0f}. On the parts alone Spark reaches "
               f"1/{1 / share:.1f}: " + ("under the target before any of the match's own work."
                                         if share < TARGET else "within the target.")]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.tier}_spark_parts.json").write_text(json.dumps(report, indent=2))
-    (RESULTS / f"{args.tier}_spark_parts.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_results(f"{args.tier}_spark_parts", report, "\n".join(lines))
     return report
 
 

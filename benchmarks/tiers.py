@@ -81,6 +81,15 @@ GOLDEN_TABLES = {
 }
 
 
+def write_results(name: str, report: dict, text: str) -> None:
+    """benchmarks/results/<name>.json (the report) and .md (its text), and the text printed."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps(report, indent=2))
+    (RESULTS / f"{name}.md").write_text(text if text.endswith("\n") else text + "\n")
+    print(text)
+    print(f"written to {RESULTS / name}.json and .md")
+
+
 def golden_check(db: Path, tier: str, write: bool) -> dict[str, object]:
     """Write (``write``) or compare the tier's matches, phases and KPIs with benchmarks/golden/<tier>_*.parquet."""
     from polars.testing import assert_frame_equal
@@ -275,11 +284,7 @@ def baseline_only(db: Path, ego: str, tier: str) -> dict:
     text = (f"# Tier {tier}: per-pair baseline only, on {db.name}\n\nMeasured {report['measured_at']}, load average "
             + " / ".join(f"{x:.1f}" for x in report["load_average"]) + " (1 / 5 / 15 min) at the start.\n\n"
             + baseline_markdown(report) + "\n")
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{tier}_baseline.json").write_text(json.dumps(report, indent=2))
-    (RESULTS / f"{tier}_baseline.md").write_text(text)
-    print(text)
-    print(f"written to {RESULTS / tier}_baseline.json and .md")
+    write_results(f"{tier}_baseline", report, text)
     return report
 
 
@@ -460,11 +465,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.tier == "S" and not args.no_baseline:
         report["baseline"] = run_baseline(db, args.ego)
         report["ratio_to_baseline"] = report["baseline"]["ratio_to_baseline"]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"{args.tier}.json").write_text(json.dumps(report, indent=2))
-    (RESULTS / f"{args.tier}.md").write_text(markdown(report))
-    print(markdown(report))
-    print(f"written to {RESULTS / args.tier}.json and .md")
+    write_results(args.tier, report, markdown(report))
     return report
 
 
