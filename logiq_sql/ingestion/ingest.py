@@ -408,7 +408,7 @@ def write_drives(con: duckdb.DuckDBPyConnection, drives: list[DriveData],
     maps = {d.map_id: d for d, *_ in accepted if d.map_id is not None}
     # a map an earlier batch of this run wrote from the same lanes frame (the Parquet reader gives every drive of a
     # map the same one: ``held``) is in the file as it is: not deleted and written again for every batch
-    rewritten = {m: d for m, d in maps.items() if m not in held or held[m][0] is not d.lanes}
+    rewritten = {m: d for m, d in maps.items() if not _held(held, m, d.lanes)}
     map_ids = pl.DataFrame({"map_id": list(rewritten)}, schema={"map_id": pl.String})
     # new rows for these drives, or for the maps other drives read: their cached steps no longer hold
     stale = ("select drive_id from _drive_ids union all select drive_id from drive_inputs "
@@ -510,12 +510,16 @@ def _map_rows(accepted: list, maps: dict[str, DriveData], held: dict[str, tuple]
         if drive.map_id is not None:
             on_map[drive.map_id].append(np.arange(offset, offset + tracks.height))
         offset += tracks.height
-    new = [m for m, drive in maps.items() if not drive.lanes.is_empty()
-           and (m not in held or held[m][0] is not drive.lanes)]
+    new = [m for m, drive in maps.items() if not drive.lanes.is_empty() and not _held(held, m, drive.lanes)]
     for m, index in zip(new, build_indexes([maps[m].lanes for m in new]), strict=True):
         held[m] = (maps[m].lanes, index)
     return [(np.concatenate(on_map[m]), drive.lanes, held[m][1] if m in held else None)
             for m, drive in maps.items()]
+
+
+def _held(held: dict[str, tuple], map_id: str, lanes: pl.DataFrame) -> bool:
+    """This run has already written and indexed map ``map_id`` from this very lanes frame (``_map_rows``)."""
+    return map_id in held and held[map_id][0] is lanes
 
 
 def drive_keys(con: duckdb.DuckDBPyConnection, drive_ids: list[str]) -> dict[str, int]:
