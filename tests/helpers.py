@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +19,19 @@ EVERY_MAP = (("commonroad", [DATA / "commonroad_ngsim/scenarios_2018b/USA_US101-
              ("sumo", [DATA / "sumo/junction_s1"]),
              ("av2", [DATA / "av2"]),
              ("scenarionet", [DATA / "nuscenes_mini_scenarionet"]))
+
+
+
+@contextlib.contextmanager
+def example_dir(tmp_path_factory, name: str) -> Iterator[Path]:
+    """A directory for one Hypothesis example, removed when the example ends: a test's examples share its one
+    tmp_path, and their DuckDB files and step caches add up to hundreds of MB."""
+    path = tmp_path_factory.mktemp(name)
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
+
 
 LANE_W = 3.5
 ROAD_LEN = 2000.0

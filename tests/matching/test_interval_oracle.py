@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from logiq_sql.matching.explain import explain
 from logiq_sql.matching.match import match
-from tests.helpers import Y1, intervals, make_db
+from tests.helpers import Y1, example_dir, intervals, make_db
 
 DT = 0.1
 
@@ -84,9 +84,10 @@ def matched_vs_oracle(tmp, frames, scenario, tracks_args, override, min_s, max_s
 @given(frames=FRAMES, min_s=st.sampled_from([0.0, 0.5, 1.0, 2.0]), max_gap_s=st.sampled_from([0.0, 0.2, 0.5]))
 def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s, max_gap_s):
     # centre offset 20 m -> gap 15.5 m -> 1.55 s; 90 m -> gap 85.5 m -> 8.55 s (outside [0, 5] s)
-    got, expected = matched_vs_oracle(tmp_path_factory.mktemp("f"), frames, "follower_vehicle",
-                                      ("vehicle", 20.0, 90.0, False), {"min_scenario_duration": f"{min_s}s"},
-                                      min_s, None, max_gap_s)
+    with example_dir(tmp_path_factory, "f") as tmp:
+        got, expected = matched_vs_oracle(tmp, frames, "follower_vehicle",
+                                          ("vehicle", 20.0, 90.0, False),
+                                          {"min_scenario_duration": f"{min_s}s"}, min_s, None, max_gap_s)
     assert got == expected
 
 
@@ -95,9 +96,10 @@ def test_follower_islands_match_the_oracle(tmp_path_factory, frames, min_s, max_
 @given(frames=FRAMES, max_s=st.sampled_from([0.3, 1.0, 2.55]), max_gap_s=st.sampled_from([0.0, 0.3]))
 def test_cyclist_pieces_match_the_oracle(tmp_path_factory, frames, max_s, max_gap_s):
     # lateral centre offset 4 m -> box gap 2.2 m (inside [0, 5] m); 12 m -> 10.2 m (outside)
-    got, expected = matched_vs_oracle(tmp_path_factory.mktemp("c"), frames, "cyclist_close_to_moving_sut",
-                                      ("cyclist", 4.0, 12.0, True), {"max_phase_duration": f"{max_s}s"},
-                                      None, max_s, max_gap_s)
+    with example_dir(tmp_path_factory, "c") as tmp:
+        got, expected = matched_vs_oracle(tmp, frames, "cyclist_close_to_moving_sut",
+                                          ("cyclist", 4.0, 12.0, True),
+                                          {"max_phase_duration": f"{max_s}s"}, None, max_s, max_gap_s)
     assert got == expected
 
 

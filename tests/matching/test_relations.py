@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from logiq_sql.matching.match import match
-from tests.helpers import Y1, actor, make_db, times
+from tests.helpers import Y1, actor, example_dir, make_db, times
 
 
 def relation_rows(db) -> pl.DataFrame:
@@ -46,9 +46,9 @@ def scene_rows(drive_id: str, ego, others) -> list[pl.DataFrame]:
 @given(scenes=st.lists(st.tuples(BOXES, st.lists(BOXES, min_size=1, max_size=6)), min_size=1, max_size=6))
 def test_box_distance_equals_shapely(tmp_path_factory, scenes):
     """box_distance_m is the exact distance between the two rotated rectangles (0 when they overlap)."""
-    tmp = tmp_path_factory.mktemp("boxes")
-    db = make_db(tmp, [r for k, (ego, others) in enumerate(scenes) for r in scene_rows(f"d{k}", ego, others)])
-    rel = relation_rows(db)
+    with example_dir(tmp_path_factory, "boxes") as tmp:
+        db = make_db(tmp, [r for k, (ego, others) in enumerate(scenes) for r in scene_rows(f"d{k}", ego, others)])
+        rel = relation_rows(db)
     assert rel["ego_id"].unique().to_list() == ["ego"]
     assert rel.height == sum(len(others) for _, others in scenes)  # every pair, within 22 m of each other
     for r in rel.iter_rows(named=True):
