@@ -16,6 +16,8 @@ for that re-match (``param_cpu_s``, ``param_wall_s``; same matches checked too).
 ``--tiers-changes``: instead, the re-matches benchmarks/tiers.py times (its PARAM_CHANGE, then back to the
 defaults, its DURATION_CHANGE, then back), each timed, on the file as it is (``--no-force``: no ``match --force``
 first; use a file whose step cache holds the default run, e.g. a tier file after its benchmark).
+``--first``: instead of ``match --force``, a first match: the file as ingested (give one with no step cache
+beside it), so every step is computed and the cache written, as the pipeline's first match does.
 ``--prime``: before the rounds each version matches a copy of the file once with the defaults (not timed), so that
 its step cache holds the default run in that version's own layout (a version whose cache is a file beside the
 file, ``<file>.step_cache``, and one that keeps it inside compare fairly); each round starts from a copy of that.
@@ -84,6 +86,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tiers-changes", action="store_true",
                         help="time the re-matches of benchmarks/tiers.py (one parameter changed and back, twice)")
     parser.add_argument("--no-force", action="store_true", help="no match --force first")
+    parser.add_argument("--first", action="store_true",
+                        help="time a first match of the ingested file (no step cache) instead of match --force")
     parser.add_argument("--prime", action="store_true",
                         help="each version first matches its own copy with the defaults, untimed; rounds start there")
     args = parser.parse_args(argv)
@@ -93,8 +97,11 @@ def main(argv: list[str] | None = None) -> None:
     if args.tiers_changes:
         changes = [("param_", PARAM_CHANGE[1]), ("param_back_", {}), ("duration_", DURATION_CHANGE[1]),
                    ("duration_back_", {})]
-    plan = ([] if args.no_force else [("", True, {})]) + [(prefix, False, o) for prefix, o in changes]
-    labels = {"": "match --force", **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
+    if args.first and (args.no_force or args.prime or path_of(args.db).is_file()):
+        parser.error("--first times a first match: a file with no step cache beside it, without --no-force or "
+                     "--prime")
+    plan = ([] if args.no_force else [("", not args.first, {})]) + [(prefix, False, o) for prefix, o in changes]
+    labels = {"": "first match" if args.first else "match --force", **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
     with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
         base = checkout(args.base, Path(tmp) / "base")
         versions = {args.base: base, "this": ROOT}

@@ -188,10 +188,14 @@ def materialise(con: duckdb.DuckDBPyConnection, table: str, relative: str, value
                 kept: str | None = None) -> None:
     """``create or replace temp table <table> as <query>`` with bound parameters (table names are ours);
     ``kept``: only the rows whose boolean column of that name is true (``Engine.materialise``)."""
+    con.execute(f"create or replace temp table {table} as " + step_query(relative, kept), bind(relative, values))
+
+
+def step_query(relative: str, kept: str | None = None) -> str:
+    """The query of a step: the file's text, or with ``kept`` only the rows whose boolean column of that name is
+    true."""
     query = query_text(relative)
-    statement = f"create or replace temp table {table} as " + (
-        f"select * from (\n{query}\n) as step where {kept}" if kept else query)
-    con.execute(statement, bind(relative, values))
+    return f"select * from (\n{query}\n) as step where {kept}" if kept else query
 
 
 def drop_temp(con: duckdb.DuckDBPyConnection, name: str) -> None:

@@ -7,7 +7,7 @@ import time
 import duckdb
 import polars as pl
 
-from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, tables_read
+from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, step_query, tables_read
 from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, Reads, as_query, copy_into_duckdb
 from logiq_sql.storage.db import stored_schema
 
@@ -48,8 +48,9 @@ class DuckEngine(Engine):
             self._views.discard(table)
             self._loaded.discard(table)
 
-    def _cached(self, table: str, step: str, key: str | None, compute) -> None:
-        """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept)."""
+    def _cached(self, table: str, step: str, key: str | None, compute, into=None) -> None:
+        """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept).
+        ``into()``: a shared step (always kept) computed straight into the cache, True when it was."""
         self._clear(table)
         if key is not None:
             self.con.execute(f"drop table if exists temp.main.{table}")
@@ -57,6 +58,10 @@ class DuckEngine(Engine):
             self._loaded.add(table)
             self._keys[table] = key
             self.cache.record(self.owners, step, table, key, computed=False)
+            return
+        if key is not None and into is not None and self.shared and into():
+            self._loaded.add(table)
+            self._keys[table] = key
             return
         started = time.process_time()
         compute()
@@ -74,7 +79,14 @@ class DuckEngine(Engine):
             self._compute(table, relative, values, kept)
             self._keys[table] = key
             return
-        self._cached(table, f"{table} {relative}", key, lambda: self._compute(table, relative, values, kept))
+        step = f"{table} {relative}"
+
+        def into() -> bool:
+            self._copy_inputs(reads)
+            return self.cache.compute_into(self.owners, step, table, key, step_query(relative, kept),
+                                           bind(relative, values))
+
+        self._cached(table, step, key, lambda: self._compute(table, relative, values, kept), into)
 
     def derive(self, table: str, compute, reads: Reads, schema: dict[str, pl.DataType]) -> None:
         key = None if self.cache is None else self._cache_key(self.cache.source_text(compute), {}, frozenset(reads))

@@ -270,6 +270,11 @@ class StepCache:
             return False
         if not self._holds(key):
             return False
+        self._view(table, key)
+        return True
+
+    def _view(self, table: str, key: str) -> None:
+        """The temp view ``table``: the rows the cache keeps under ``key`` for the batch's drives."""
         data = f"{tables.STEP_CACHE_PREFIX}{key}"
         column = self._drive_column(data)
         columns = "*" if column == "drive_id" else f"* exclude ({column})"
@@ -277,7 +282,58 @@ class StepCache:
         # row needs filtering out
         where = f" where {column} in (select drive_id from _batch_versions)" if key in self._outside else ""
         self.con.execute(f"create temp view {table} as select {columns} from {STORED}.{data}{where}")
+
+    def compute_into(self, owners: tuple[str, ...], step: str, table: str, key: str, query: str,
+                     params: dict[str, object]) -> bool:
+        """A step the cache always keeps (``record``'s ``keep``: the shared steps), computed straight into the
+        cache, and ``table`` made a view of its rows as a reused step's is: its rows are written once, where a
+        temp table and then its copy in the cache wrote them twice (relations: benchmarks/README.md). False, with
+        nothing done, when the cache keeps no rows of it here: the batch is not cacheable, the cache holds the rows
+        already (match --force computes them again, as a temp table), or they are not per drive (a map's)."""
+        if not (self._usable and owners) or self._holds(key):
+            return False
+        query = f"(\n{query}\n)"  # on lines of its own: the query may end in a comment
+        columns = {d[0] for d in self.con.execute(f"select * from {query} as step limit 0", params).description}
+        if not columns & {"drive_id", "drive_key"}:
+            return False
+        data = f"{tables.STEP_CACHE_PREFIX}{key}"
+        rows_of = query if "drive_id" in columns else self._with_drive_id(query)
+        self._create(data, rows_of, step, params)
+        self._count(owners, step, "computed")
+        self._point_entries(step, key, rows_of, data, write=True, params=params)
+        self._view(table, key)
         return True
+
+    @staticmethod
+    def _with_drive_id(rows_of: str) -> str:
+        """The rows of a step that carries only drive_key, with the drive's id beside each (``DRIVE_ID_KEPT``)."""
+        return (f"(select b.drive_id as {DRIVE_ID_KEPT}, t.* from {rows_of} as t "
+                "inner join _batch_versions as b on t.drive_key = b.drive_key)")
+
+    def _create(self, data: str, rows_of: str, step: str, params: dict[str, object] | None = None) -> None:
+        """The cache table ``data``, empty, shaped as ``rows_of``, if there is none yet."""
+        if data in cache_tables(self.con):
+            return
+        # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
+        # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
+        self.con.execute(f"create table {STORED}.{data} as select * from {rows_of} as step limit 0", params)
+        tables.comment_derived(self.con, f"{STORED}.{data}", data,
+                               f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
+                               "name this table (logiq_sql/storage/step_cache.py).", {},
+                               "As the step's query returns it (step_cache.step names the query; its header "
+                               "describes the column).")
+
+    def _count(self, owners: tuple[str, ...], step: str, how: str) -> None:
+        """A step of the batch ``computed`` or ``reused`` for ``owners``, noted; ``_owners`` made those owners."""
+        self.steps.append((self._batch, owners, step, how))
+        if how == "computed":
+            self.computed += 1
+        else:
+            self.reused += 1
+        if owners != self._owners:  # a temp table, made again only when the owners change (once per scenario)
+            self.con.execute("create or replace temp table _owners as select unnest($o::varchar[]) as scenario",
+                             {"o": list(owners)})
+            self._owners = owners
 
     def record(self, owners: tuple[str, ...], step: str, table: str, key: str, computed: bool,
                compute_s: float = 0.0, keep: bool = False) -> None:
@@ -301,14 +357,8 @@ class StepCache:
                 self.uncached += 1
                 return
             # the rows to keep: with the drive's id beside them when they carry only its key
-            rows_of = (f"temp.main.{table}" if "drive_id" in columns else
-                       f"(select b.drive_id as {DRIVE_ID_KEPT}, t.* from temp.main.{table} as t "
-                       "inner join _batch_versions as b on t.drive_key = b.drive_key)")
-        self.steps.append((self._batch, owners, step, "computed" if computed else "reused"))
-        if computed:
-            self.computed += 1
-        else:
-            self.reused += 1
+            rows_of = f"temp.main.{table}" if "drive_id" in columns else self._with_drive_id(f"temp.main.{table}")
+        self._count(owners, step, "computed" if computed else "reused")
         write = computed and not self._holds(key)  # match --force recomputes rows the cache already holds
         if write:
             (rows,) = con.execute(f"select count(*) from temp.main.{table}").fetchall()[0]
@@ -318,19 +368,7 @@ class StepCache:
                 self.not_kept += 1
                 return
             started = time.process_time()
-            # created empty in a transaction of its own: a DuckDB 2.0 table created and filled in one transaction
-            # keeps the empty table's statistics, and later filters on drive_id skip its rows (logiq_sql/storage/store.py)
-            if data not in cache_tables(con):
-                con.execute(f"create table {STORED}.{data} as select * from {rows_of} limit 0")
-                tables.comment_derived(con, f"{STORED}.{data}", data,
-                                   f"Step cache: rows of the step {step}, for the drives whose step_cache entries "
-                                   "name this table (logiq_sql/storage/step_cache.py).", {},
-                                   "As the step's query returns it (step_cache.step names the query; its header "
-                                   "describes the column).")
-        if owners != self._owners:  # a temp table, made again only when the owners change (once per scenario)
-            con.execute("create or replace temp table _owners as select unnest($o::varchar[]) as scenario",
-                        {"o": list(owners)})
-            self._owners = owners
+            self._create(data, rows_of, step)
         if not write and self._entries(step, key) == len(owners) * len(self._batch):
             return  # each owner's entry already names this key for every drive of the batch
         self._point_entries(step, key, rows_of if write else "", data, write)
@@ -338,8 +376,10 @@ class StepCache:
             self._write_s += time.process_time() - started
             self._cells += cells
 
-    def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool) -> None:
-        """In one transaction: the batch's rows (``rows_of``, a table or subquery) written to ``data`` (``write``),
+    def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool,
+                       params: dict[str, object] | None = None) -> None:
+        """In one transaction: the batch's rows (``rows_of``, a table or a subquery binding ``params``) written to
+        ``data`` (``write``),
         the entries of the owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry
         refers to any more removed."""
         con = self.con
@@ -348,7 +388,7 @@ class StepCache:
             if write:
                 con.execute(f"delete from {STORED}.{data} where {self._drive_column(data)} in "
                             "(select drive_id from _batch_versions)")
-                con.execute(f"insert into {STORED}.{data} select * from {rows_of}")
+                con.execute(f"insert into {STORED}.{data} select * from {rows_of} as step", params)
             con.execute("create or replace temp table _replaced as select step_key, table_name, drive_id "
                         "from _batch_entries where step = $s and step_key <> $k and scenario in (select scenario "
                         "from _owners)", {"s": step, "k": key})

@@ -16,6 +16,7 @@ from logiq_sql import ingest, match
 from logiq_sql.cli import main
 from logiq_sql.core import sql
 from logiq_sql.core.sql import bind, tables_read
+from logiq_sql.engines import duckdb_engine
 from logiq_sql.spec.plan import parse_ego, phase_steps, resolve_scenarios, run_values
 from logiq_sql.storage import step_cache
 from logiq_sql.storage.step_cache import drive_column
@@ -307,3 +308,34 @@ def test_shared_steps_are_kept_however_cheap_and_others_only_when_dearer_than_ke
               "junction_frames", "crossing_pairs", "encroachments"}
     assert shared <= kept, shared - kept
     assert not {"scenario_frames", "phase_1", "phase_runs", "scenario_match"} & kept, kept
+
+
+def test_shared_steps_are_computed_straight_into_the_cache(ingested, tmp_path, monkeypatch):
+    """A shared step's rows are written once, into the cache, and the batch reads them there (a view, as a reused
+    step's): no temp table of them is made first. match --force, whose cache already holds them, computes them as
+    temp tables. The outputs are those of a run with no cache."""
+    made = []
+    real = duckdb_engine.materialise
+
+    def recorded(con, table, *args, **kwargs):
+        made.append(table)
+        real(con, table, *args, **kwargs)
+
+    monkeypatch.setattr(duckdb_engine, "materialise", recorded)
+    db = ingested(tmp_path / "x.duckdb", "commonroad", DRIVES)
+    uncached = shutil.copyfile(db, tmp_path / "uncached.duckdb")
+    result = match(db, scenarios=SCENARIOS, batch_rows=1)
+    shared = {"egos", "actor_lanes", "ego_lanes", "ego_road", "relations"}
+    computed = {step.split(" ", 1)[0] for _, _, step, status in result.cache_steps if status == "computed"}
+    assert shared <= computed, shared - computed
+    assert not shared & set(made), shared & set(made)
+    assert "phase_1" in made  # a step the cache may not keep is still a temp table first
+    with cache_of(db) as con:
+        kept = {r[0] for r in con.execute("select distinct split_part(step, ' ', 1) from cache.step_cache").fetchall()}
+    assert shared <= kept, shared - kept
+    made.clear()
+    match(db, scenarios=SCENARIOS, force=True)
+    assert shared <= set(made), shared - set(made)
+    monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "off")
+    match(uncached, scenarios=SCENARIOS)
+    assert_same_outputs(db, uncached)
