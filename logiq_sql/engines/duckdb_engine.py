@@ -50,7 +50,7 @@ class DuckEngine(Engine):
 
     def _cached(self, table: str, step: str, key: str | None, compute, into=None) -> None:
         """``table`` from the cache under ``key`` if it holds the batch's rows, else ``compute()``d (and kept).
-        ``into()``: a shared step (always kept) computed straight into the cache, True when it was."""
+        ``into()``: a step the cache always keeps computed straight into it, True when it was."""
         self._clear(table)
         if key is not None:
             self.con.execute(f"drop table if exists temp.main.{table}")
@@ -59,7 +59,7 @@ class DuckEngine(Engine):
             self._keys[table] = key
             self.cache.record(self.owners, step, table, key, computed=False)
             return
-        if key is not None and into is not None and self.shared and into():
+        if key is not None and into is not None and self._kept_always(table) and into():
             self._loaded.add(table)
             self._keys[table] = key
             return
@@ -68,7 +68,14 @@ class DuckEngine(Engine):
         self._keys[table] = key
         if key is not None:
             self.cache.record(self.owners, step, table, key, computed=True,
-                              compute_s=time.process_time() - started, keep=self.shared)
+                              compute_s=time.process_time() - started, keep=self._kept_always(table))
+
+    def _kept_always(self, table: str) -> bool:
+        """Whether the cache keeps ``table`` whatever writing it costs (``StepCache.record``'s ``keep``): a shared
+        step (relations, junctions), which a re-match would otherwise recompute after copying the batch's inputs in
+        though every step reading it comes from the cache, and a scenario's frames step, which binds no parameter
+        and which the scenario's phases read again after any change of one."""
+        return self.shared or table == "scenario_frames"
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         text = query_text(relative) + (f"\n-- only the rows where {kept}" if kept else "")  # other rows, other key

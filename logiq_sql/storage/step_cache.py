@@ -285,9 +285,9 @@ class StepCache:
 
     def compute_into(self, owners: tuple[str, ...], step: str, table: str, key: str, query: str,
                      params: dict[str, object]) -> bool:
-        """A step the cache always keeps (``record``'s ``keep``: the shared steps), computed straight into the
-        cache, and ``table`` made a view of its rows as a reused step's is: its rows are written once, where a
-        temp table and then its copy in the cache wrote them twice (relations: benchmarks/README.md). False, with
+        """A step the cache always keeps (``record``'s ``keep``), computed straight into the cache, and ``table``
+        made a view of its rows as a reused step's is: its rows are written once, where a temp table and then its
+        copy in the cache wrote them twice (relations: benchmarks/README.md). False, with
         nothing done, when the cache keeps no rows of it here: the batch is not cacheable, the cache holds the rows
         already (match --force computes them again, as a temp table), or they are not per drive (a map's)."""
         if not (self._usable and owners) or self._holds(key):
@@ -341,10 +341,11 @@ class StepCache:
         under ``key`` and each owner's entry for the step pointed at it; rows no entry refers to any more go.
         A computed step is kept only when computing it took at least what keeping as many cells has cost so far
         in this run, both in CPU seconds of the process (steadier than wall time on a shared machine; writing a
-        wide per-frame table can cost more than its query), unless ``keep_all`` or ``keep``: a shared step
-        (relations, junctions) is always kept, since a re-match that recomputes one, however cheap, first copies
-        the batch's inputs for it, though the steps reading it come from the cache (actor_lanes: 14 s of a 59 s
-        re-match at tier L)."""
+        wide per-frame table can cost more than its query), unless ``keep_all`` or ``keep`` (the engine's
+        ``_kept_always``: a shared step, since a re-match that recomputes one, however cheap, first copies the
+        batch's inputs for it, though the steps reading it come from the cache, actor_lanes: 14 s of a 59 s
+        re-match at tier L; and a scenario's frames step, which its phases read again after any parameter
+        change)."""
         if not (self._usable and owners):
             self.uncached += 1
             return

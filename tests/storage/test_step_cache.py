@@ -291,10 +291,12 @@ def test_a_file_that_kept_its_cache_inside_drops_it_when_next_written(matched):
                            ).fetchall()[0][0] == 0
 
 
-def test_shared_steps_are_kept_however_cheap_and_others_only_when_dearer_than_keeping(ingested, tmp_path, monkeypatch):
+def test_shared_and_frames_steps_are_kept_however_cheap_others_only_when_dearer_than_keeping(ingested, tmp_path,
+                                                                                           monkeypatch):
     # keeping rows made to look dear (1000 CPU s per write): in the default mode no step is cheap enough to be
     # kept, except the shared ones (egos, relations, junctions), which a re-match would otherwise recompute for
-    # want of their rows though every step reading them comes from the cache
+    # want of their rows though every step reading them comes from the cache, and the scenario's frames step,
+    # which binds no parameter and which its phases read again after any parameter change
     monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "auto")
     monkeypatch.setattr(step_cache, "CALIBRATION_CELLS", 1)
     clock = iter(range(0, 10**9, 1000))
@@ -305,15 +307,15 @@ def test_shared_steps_are_kept_however_cheap_and_others_only_when_dearer_than_ke
     with cache_of(db) as con:
         kept = {r[0] for r in con.execute("select distinct split_part(step, ' ', 1) from cache.step_cache").fetchall()}
     shared = {"egos", "actor_lanes", "ego_lanes", "ego_road", "relations", "actor_paths", "passages",
-              "junction_frames", "crossing_pairs", "encroachments"}
+              "junction_frames", "crossing_pairs", "encroachments", "scenario_frames"}
     assert shared <= kept, shared - kept
-    assert not {"scenario_frames", "phase_1", "phase_runs", "scenario_match"} & kept, kept
+    assert not {"phase_1", "phase_runs", "scenario_match"} & kept, kept
 
 
-def test_shared_steps_are_computed_straight_into_the_cache(ingested, tmp_path, monkeypatch):
-    """A shared step's rows are written once, into the cache, and the batch reads them there (a view, as a reused
-    step's): no temp table of them is made first. match --force, whose cache already holds them, computes them as
-    temp tables. The outputs are those of a run with no cache."""
+def test_steps_always_kept_are_computed_straight_into_the_cache(ingested, tmp_path, monkeypatch):
+    """A shared step's rows, or a frames step's, are written once, into the cache, and the batch reads them there
+    (a view, as a reused step's): no temp table of them is made first. match --force, whose cache already holds
+    them, computes them as temp tables. The outputs are those of a run with no cache."""
     made = []
     real = duckdb_engine.materialise
 
@@ -325,7 +327,7 @@ def test_shared_steps_are_computed_straight_into_the_cache(ingested, tmp_path, m
     db = ingested(tmp_path / "x.duckdb", "commonroad", DRIVES)
     uncached = shutil.copyfile(db, tmp_path / "uncached.duckdb")
     result = match(db, scenarios=SCENARIOS, batch_rows=1)
-    shared = {"egos", "actor_lanes", "ego_lanes", "ego_road", "relations"}
+    shared = {"egos", "actor_lanes", "ego_lanes", "ego_road", "relations", "scenario_frames"}  # follower's frames
     computed = {step.split(" ", 1)[0] for _, _, step, status in result.cache_steps if status == "computed"}
     assert shared <= computed, shared - computed
     assert not shared & set(made), shared & set(made)
