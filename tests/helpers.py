@@ -21,7 +21,6 @@ EVERY_MAP = (("commonroad", [DATA / "commonroad_ngsim/scenarios_2018b/USA_US101-
              ("scenarionet", [DATA / "nuscenes_mini_scenarionet"]))
 
 
-
 @contextlib.contextmanager
 def example_dir(tmp_path_factory, name: str) -> Iterator[Path]:
     """A directory for one Hypothesis example, removed when the example ends: a test's examples share its one

@@ -9,6 +9,7 @@ import polars as pl
 
 from logiq_sql.core.sql import bind, cte_names, materialise, query_text, step_key, step_query, tables_read
 from logiq_sql.engines.base import DRIVE_INPUT_NAMES, PARTITIONED_BY_DRIVE, Engine, Reads, as_query, copy_into_duckdb
+from logiq_sql.spec.scenario import FRAMES_TABLE
 from logiq_sql.storage.db import stored_schema
 
 
@@ -75,7 +76,7 @@ class DuckEngine(Engine):
         step (relations, junctions), which a re-match would otherwise recompute after copying the batch's inputs in
         though every step reading it comes from the cache, and a scenario's frames step, which binds no parameter
         and which the scenario's phases read again after any change of one."""
-        return self.shared or table == "scenario_frames"
+        return self.shared or table == FRAMES_TABLE
 
     def materialise(self, table: str, relative: str, values: dict[str, object], kept: str | None = None) -> None:
         text = query_text(relative) + (f"\n-- only the rows where {kept}" if kept else "")  # other rows, other key

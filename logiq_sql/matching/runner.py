@@ -26,7 +26,7 @@ from logiq_sql.spec.plan import (
     phase_steps,
     relation_kinds_csv,
 )
-from logiq_sql.spec.scenario import Scenario
+from logiq_sql.spec.scenario import FRAMES_TABLE, Scenario
 from logiq_sql.storage.store import ScenarioOutput
 from logiq_sql.storage.tables import COVERAGE_BUCKETS, COVERAGE_SAMPLES
 
@@ -106,7 +106,7 @@ def kept_rows(s: Scenario, table: str) -> str | None:
     condition failed."""
     if re.fullmatch(r"phase_\d+", table) is not None:
         return "holds"
-    if table == "scenario_frames" and "may_hold" in (output_columns(s.frames_query) or ()):
+    if table == FRAMES_TABLE and "may_hold" in (output_columns(s.frames_query) or ()):
         return "may_hold"
     return None
 

@@ -18,7 +18,7 @@ from sqlglot import exp
 
 from logiq_sql.core.errors import did_you_mean
 from logiq_sql.core.sql import parsed, placeholders, shown_path, unit_constant
-from logiq_sql.spec.scenario import Scenario
+from logiq_sql.spec.scenario import FRAMES_TABLE, Scenario
 
 # the columns every phase query returns (one row per pair and frame; rows where the phase does not hold may be
 # left out): the pair by its ids (for people) and by its integer keys (what the match steps after it read)
@@ -152,7 +152,7 @@ def check_scenario(s: Scenario, queries: list[str]) -> list[str]:
                                 f"({s.path}) provides.{did_you_mean(name, sorted(bound))}")
     if problems:
         return problems
-    frames = () if s.frames_query is None else (("scenario_frames", output_columns(s.frames_query)),)
+    frames = () if s.frames_query is None else ((FRAMES_TABLE, output_columns(s.frames_query)),)
     for phase in s.phases:
         have = output_columns(phase.query, frames)
         where = f"{s.path} [[phases]] {phase.name}: {shown_path(phase.query)}"

@@ -17,7 +17,7 @@ from logiq_sql.core.errors import ScenarioError, arg, did_you_mean
 from logiq_sql.core.schema import EGO_KINDS, OBJECT_KINDS
 from logiq_sql.core.sql import per_phase, query_text
 from logiq_sql.spec.contract import PHASE_VALUES, check_scenario
-from logiq_sql.spec.scenario import Scenario, ScenarioPath, list_scenarios, load_scenario
+from logiq_sql.spec.scenario import FRAMES_TABLE, Scenario, ScenarioPath, list_scenarios, load_scenario
 
 DEFAULT_RELATION_RANGE = "200m"  # a 5 s headway (the lane-following maximum) at 140 km/h
 OBJECT_RELATION_RANGE_M = 50.0  # non-vehicle actors are related to the ego only this close
@@ -174,7 +174,7 @@ def phase_steps(s: Scenario) -> list[tuple[str, str]]:
     """The steps from the relations to the scenario's matches (table, query): the optional frames step, each
     phase's query, the phases as rows (the frames at which each holds, and their names and duration limits), then
     the generic runs, chain and match."""
-    steps = [("scenario_frames", s.frames_query)] if s.frames_query else []
+    steps = [(FRAMES_TABLE, s.frames_query)] if s.frames_query else []
     steps += [(f"phase_{i}", p.query) for i, p in enumerate(s.phases, 1)]
     steps += [("phase_frames", per_phase(PHASE_FRAMES_QUERY, len(s.phases))),
               ("scenario_phases", per_phase(SCENARIO_PHASES_QUERY, len(s.phases)))]

@@ -42,6 +42,8 @@ _COVERAGE_KEYS = {"name", "column", "unit", "sample", "description", "range", "e
 KPI_TYPES = ("number", "text")
 # KPI units whose values are text; any other unit must be a unit of logiq_sql.core.units or declare `type`
 TEXT_UNITS = ("string", "evaluation_object_kind")
+# the table of a scenario's optional frames step, which its phase queries read by this name
+FRAMES_TABLE = "scenario_frames"
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,7 @@ class Scenario:
     actors: dict[str, str]
     params: dict[str, Param]
     phases: tuple[Phase, ...]
-    frames_query: str | None  # an optional step (table scenario_frames) that the phase queries read
+    frames_query: str | None  # an optional step (table FRAMES_TABLE) that the phase queries read
     junctions: bool  # the scenario needs the junction steps (queries/junctions/)
     # the actor kinds whose rows of `relations` the scenario's queries can use (None: every kind); a run computes
     # the relation only for the kinds some scenario of it can use (logiq_sql.spec.plan.relation_kinds_csv)

@@ -287,9 +287,9 @@ class StepCache:
                      params: dict[str, object]) -> bool:
         """A step the cache always keeps (``record``'s ``keep``), computed straight into the cache, and ``table``
         made a view of its rows as a reused step's is: its rows are written once, where a temp table and then its
-        copy in the cache wrote them twice (relations: benchmarks/README.md). False, with
-        nothing done, when the cache keeps no rows of it here: the batch is not cacheable, the cache holds the rows
-        already (match --force computes them again, as a temp table), or they are not per drive (a map's)."""
+        copy in the cache wrote them twice (relations: benchmarks/README.md). False, with nothing done, when the
+        cache keeps no rows of it here: the batch is not cacheable, the cache holds the rows already (match --force
+        computes them again, as a temp table), or they are not per drive (a map's)."""
         if not (self._usable and owners) or self._holds(key):
             return False
         query = f"(\n{query}\n)"  # on lines of its own: the query may end in a comment
@@ -380,9 +380,8 @@ class StepCache:
     def _point_entries(self, step: str, key: str, rows_of: str, data: str, write: bool,
                        params: dict[str, object] | None = None) -> None:
         """In one transaction: the batch's rows (``rows_of``, a table or a subquery binding ``params``) written to
-        ``data`` (``write``),
-        the entries of the owners (``_owners``) for the batch's drives pointed at ``key``, and the rows no entry
-        refers to any more removed."""
+        ``data`` (``write``), the entries of the owners (``_owners``) for the batch's drives pointed at ``key``, and
+        the rows no entry refers to any more removed."""
         con = self.con
         con.execute("begin transaction")
         try:
