@@ -101,7 +101,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--first times a first match: a file with no step cache beside it, without --no-force or "
                      "--prime")
     plan = ([] if args.no_force else [("", not args.first, {})]) + [(prefix, False, o) for prefix, o in changes]
-    labels = {"": "first match" if args.first else "match --force", **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
+    labels = {"": "first match" if args.first else "match --force",
+              **{prefix: f"re-match with {o or 'the defaults back'}" for prefix, o in changes}}
     with tempfile.TemporaryDirectory(prefix="rematch_ab_") as tmp:
         base = checkout(args.base, Path(tmp) / "base")
         versions = {args.base: base, "this": ROOT}
