@@ -28,6 +28,14 @@ localisation, wall and CPU seconds. It also times one more part and gives the ra
                    track_lanes rows of the first round's ingest, exported to Parquet before the clock starts and
                    written with one plain statement (benchmarks/README.md says why it is a part)
 
+With --kept each round also times one more write, the rows a first match keeps for re-matches to read (issue 32's
+step cache): needs a tiers run's file of the tier (benchmarks/work/<TIER>/bench.duckdb and its .step_cache):
+
+    kept write     every table the file's step cache entries name (relations, lanes of the egos and actors, actor
+                   paths, phases, frames), exported to Parquet before the clock starts and written once into a
+                   DuckDB file, table after table, with one plain statement each; the relations table's own write
+                   is given beside the total
+
 The sum of these parts says how far any design of the pipeline could get: the issue-15 targets are 40x the floor
 end to end (which holds every part) and 3 M rows/s re-matching (which holds the pair join, not the rest).
 Written: benchmarks/results/<TIER>_components.json and .md.
@@ -49,6 +57,7 @@ from benchmarks.tiers import FLOOR_SQL, WORK, write_results
 from logiq_sql.core.timing import cpu_seconds
 from logiq_sql.ingestion.ingest import ingest
 from logiq_sql.ingestion.localise import CHUNK_POINTS, STATIC_KINDS, LaneIndex
+from logiq_sql.storage import step_cache
 
 PARTS = {
     "floor": FLOOR_SQL,
@@ -153,6 +162,42 @@ INGEST_PARTS = ("floor", "window", "write", "localisation")
 # with it, the pairs the look-up finds are also written once, as ingest stores them for matching to read
 WITH_LANES_WRITE = (*INGEST_PARTS, "lanes write")
 LANES_WRITE = "create table track_lanes as select * from read_parquet($path)"
+# the parts the end-to-end target counts (issue 33: the pipeline at most 4x their sum)
+PIPELINE_PARTS = ("floor", "window", "write", "pair join", "localisation")
+# writes timed besides the parts, given apart from their sum
+MORE_WRITES = ("lanes write", "kept write", "relations write")
+KEPT_WRITE = "create table kept_{i} as select * from read_parquet($path)"
+RELATIONS_STEP = "relations relations/relations.sql"
+
+
+def export_kept(tier_db: Path, out: Path) -> list[dict]:
+    """The tables the step cache of ``tier_db`` keeps (those its entries name), each exported to ``out`` as Parquet
+    (before the clock): the file, its rows and columns and the steps it holds rows of."""
+    kept = []
+    with duckdb.connect(str(step_cache.path_of(tier_db)), read_only=True) as con:
+        for table, steps in con.execute("select table_name, string_agg(distinct step, ', ' order by step) "
+                                        "from step_cache group by table_name order by table_name").fetchall():
+            path = out / f"{table}.parquet"  # table names are step_cache_<hex key>, made by the cache itself
+            con.execute(f"copy {table} to '{path}' (format parquet)")
+            (rows,) = con.execute(f"select count(*) from {table}").fetchone()
+            columns = len(con.execute(f"select * from {table} limit 0").description)
+            kept.append({"path": path, "rows": rows, "columns": columns, "steps": steps})
+    return kept
+
+
+def write_kept(kept: list[dict], db: Path, cpu: dict[str, float]) -> dict[str, float]:
+    """The kept write: each exported table written once into the new DuckDB file ``db`` (``kept_<i>``, in the order
+    of ``kept``); wall seconds of the whole and of the relations table alone (their CPU seconds into ``cpu``)."""
+    seconds = {"kept write": 0.0, "relations write": 0.0}
+    cpu.update({"kept write": 0.0, "relations write": 0.0})
+    with duckdb.connect(str(db)) as con:
+        for i, table in enumerate(kept):
+            wall, used = timed(lambda i=i, table=table: con.execute(KEPT_WRITE.format(i=i),
+                                                                    {"path": str(table["path"])}).fetchall())
+            for name in ("kept write", "relations write") if RELATIONS_STEP in table["steps"] else ("kept write",):
+                seconds[name] += wall
+                cpu[name] += used
+    return seconds
 
 
 def ingest_once(path: Path, lanes_out: Path | None = None) -> tuple[float, float]:
@@ -172,16 +217,27 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--tier", default="M")
     parser.add_argument("--ingest", action="store_true",
                         help="also time logiq_sql's ingest of the same Parquet in each round, against its parts")
+    parser.add_argument("--kept", action="store_true",
+                        help="also time writing the rows a first match keeps in the step cache (needs a tiers run's "
+                             "file of the tier)")
     args = parser.parse_args(argv)
     path = WORK / args.tier / "parquet" / "tracks.parquet"
     if not path.exists():
         raise SystemExit(f"{path} not found: run `make bench TIER={args.tier}` first.")
+    tier_db = WORK / args.tier / "bench.duckdb"
+    if args.kept and not step_cache.path_of(tier_db).exists():
+        raise SystemExit(f"{step_cache.path_of(tier_db)} not found: run `python -m benchmarks.tiers --tier "
+                         f"{args.tier}` first (its first match keeps the steps).")
     rounds = []
-    with tempfile.TemporaryDirectory() as keep:
+    with tempfile.TemporaryDirectory(dir=WORK) as keep:
         lanes = Path(keep) / "track_lanes.parquet"
+        kept = export_kept(tier_db, Path(keep)) if args.kept else []
         for _ in range(2):
             cpu: dict[str, float] = {}
             wall = {}
+            if kept:
+                with tempfile.TemporaryDirectory() as tmp:
+                    wall |= write_kept(kept, Path(tmp) / "kept.duckdb", cpu)
             if args.ingest:
                 wall["ingest"], cpu["ingest"] = ingest_once(path, None if lanes.exists() else lanes)
                 with tempfile.TemporaryDirectory() as tmp, duckdb.connect(str(Path(tmp) / "part.duckdb")) as con:
@@ -194,16 +250,17 @@ def main(argv: list[str] | None = None) -> dict:
     cpus = {k: min(r[1][k] for r in rounds) for k in rounds[0][1]}
     floor = seconds["floor"]
     parts = {k: {"seconds": v, "cpu_seconds": cpus[k], "ratio_to_floor": v / floor}
-             for k, v in sorted(seconds.items(), key=lambda kv: kv[0] == "lanes write") if k != "ingest"}
+             for k, v in sorted(seconds.items(), key=lambda kv: kv[0] in MORE_WRITES) if k != "ingest"}
     report = {"tier": args.tier, "parts": parts,
               "sum_ratio_to_floor": sum(p["ratio_to_floor"] for k, p in parts.items()
-                                        if k not in ("floor", "lanes write")),
+                                        if k != "floor" and k not in MORE_WRITES),
               "measured_at": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     lines = [f"# Tier {args.tier}: the pipeline's unavoidable parts alone", "",
              "| part | wall s | x floor | CPU s |", "|---|---:|---:|---:|"]
     lines += [f"| {k} | {p['seconds']:.2f} | {p['ratio_to_floor']:.1f} | {p['cpu_seconds']:.2f} |"
               for k, p in parts.items()]
-    lines += ["", f"Sum of the parts other than the floor (and the lanes write): **{report['sum_ratio_to_floor']:.1f}x the floor** "
+    lines += ["", f"Sum of the parts other than the floor (and the writes after them): "
+              f"**{report['sum_ratio_to_floor']:.1f}x the floor** "
               f"(measured {report['measured_at']})."]
     if args.ingest:
         rows = pl.scan_parquet(path).select(pl.len()).collect().item()
@@ -224,6 +281,23 @@ def main(argv: list[str] | None = None) -> dict:
                   f"(CPU {r['cpu_ratio_to_parts']:.2f}x). With the lanes write among them "
                   f"({more['seconds']:.2f} s, CPU {more['cpu_seconds']:.2f} s): "
                   f"**{r['ratio_to_parts_with_lanes_write']:.2f}x** (CPU {r['cpu_ratio_to_parts_with_lanes_write']:.2f}x)."]
+    if kept:
+        budget = 4 * sum(seconds[k] for k in PIPELINE_PARTS)
+        report["kept"] = {"tables": len(kept), "rows": sum(t["rows"] for t in kept),
+                          "cells": sum(t["rows"] * t["columns"] for t in kept),
+                          "relations_rows": sum(t["rows"] for t in kept if RELATIONS_STEP in t["steps"]),
+                          "pipeline_budget_s": budget}
+        k = report["kept"]
+        lines += ["", f"**Kept write**: the {k['tables']} tables of the tier's step cache, {k['rows']:,} rows, "
+                  f"{k['cells']:,} cells ({k['relations_rows']:,} rows of relations), written in "
+                  f"{seconds['kept write']:.2f} s (CPU {cpus['kept write']:.2f} s), the relations alone "
+                  f"{seconds['relations write']:.2f} s. The end-to-end target, 4x the parts "
+                  f"({' + '.join(PIPELINE_PARTS)}), is {budget:.2f} s; the kept write is "
+                  f"{seconds['kept write'] / budget:.0%} of it."]
+        if args.ingest:
+            k["left_for_match_s"] = budget - seconds["ingest"] - seconds["kept write"]
+            lines[-1] += (f" After the ingest ({seconds['ingest']:.2f} s) and the kept write, "
+                          f"{k['left_for_match_s']:.2f} s are left for computing everything a first match keeps.")
     write_results(f"{args.tier}_components", report, "\n".join(lines))
     return report
 

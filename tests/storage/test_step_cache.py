@@ -341,3 +341,24 @@ def test_steps_always_kept_are_computed_straight_into_the_cache(ingested, tmp_pa
     monkeypatch.setenv("LOGIQ_SQL_STEP_CACHE", "off")
     match(uncached, scenarios=SCENARIOS)
     assert_same_outputs(db, uncached)
+
+
+def test_the_kept_write_part_writes_every_row_the_cache_keeps(matched, tmp_path):
+    # benchmarks/components.py --kept: the rows a first match keeps, written once, are what the end-to-end target's
+    # budget must hold besides the parts; each table the entries name is written whole, the relations among them
+    from benchmarks.components import RELATIONS_STEP, export_kept, write_kept
+
+    kept = export_kept(matched, tmp_path)
+    with cache_of(matched) as con:
+        named = dict(con.execute("select table_name, count(distinct step) from cache.step_cache "
+                                 "group by table_name").fetchall())
+        rows = {t: con.execute(f"select count(*) from cache.{t}").fetchone()[0] for t in named}
+    assert {t["path"].stem: t["rows"] for t in kept} == rows
+    assert [t for t in kept if RELATIONS_STEP in t["steps"]], "the relations step is not among the kept steps"
+    cpu: dict[str, float] = {}
+    seconds = write_kept(kept, tmp_path / "kept.duckdb", cpu)
+    with duckdb.connect(str(tmp_path / "kept.duckdb"), read_only=True) as con:
+        assert [con.execute(f"select count(*) from kept_{i}").fetchone()[0] for i in range(len(kept))] == [
+            t["rows"] for t in kept]
+    assert 0 < seconds["relations write"] < seconds["kept write"]
+    assert set(cpu) == {"kept write", "relations write"}
