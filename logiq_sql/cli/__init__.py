@@ -158,6 +158,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     import duckdb
     import polars as pl
 
+    from logiq_sql.storage import tables
     from logiq_sql.storage.db import open_for_read
 
     db = _existing_db(args)
@@ -167,7 +168,11 @@ def cmd_query(args: argparse.Namespace) -> int:
         try:
             frame = con.sql(args.sql).pl()
         except duckdb.Error as exc:  # the analyst's SQL: a bad-input error, not a crash
-            raise LogiqError(f"{exc}\n\nHint: the tables and their columns are in docs/tables.md.") from None
+            hint = "the tables and their columns are in docs/tables.md."
+            if isinstance(exc, duckdb.BinderException | duckdb.CatalogException):
+                # a column or view the SQL names may be one added since an earlier logiq_sql wrote the file
+                hint = tables.outdated(con, db) or hint
+            raise LogiqError(f"{exc}\n\nHint: {hint}") from None
     limit = args.limit if args.limit is not None else (TABLE_ROWS if args.format == "table" else 0)
     shown = frame.head(limit) if limit else frame
     if args.format == "csv":

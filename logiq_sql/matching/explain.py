@@ -47,7 +47,7 @@ from logiq_sql.spec.plan import (
     run_values,
 )
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
-from logiq_sql.storage import db, tables
+from logiq_sql.storage import db
 
 # the pairs' ids by their integer keys, from the phases' rows (the phase contract returns both)
 _PAIR_IDS = """
@@ -236,9 +236,8 @@ def explain(db_path: str | Path, scenario: str, drive: str, ego: str, *, actor: 
         missing = next(p.name for p in s.phases if not p.conditions)
         raise ScenarioError(f"explain: phase {missing} of {s.path} lists no conditions; list them "
                             "(`conditions = [{ name, value, test }]`, docs/scenarios.md) to explain it.")
-    con = db.open_for_read(db_path)
+    con = db.open_current(db_path)
     try:
-        tables.require_current(con, db_path)
         known = [r[0] for r in con.execute("select drive_id from drive_inputs").fetchall()]
         if drive not in known:
             raise ScenarioError(f"explain {arg('drive', drive)}: no such drive in {db_path}.")

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
-from logiq_sql.storage.db import connect
+from logiq_sql.storage.db import open_current
 
 # phases: a qualitative palette clear of the ego's blue, the actor's red, the grey of other road users, the tan of
 # junctions and the replay's measure colours (replay.SERIES_COLOURS)
@@ -94,7 +94,7 @@ def birds_eye(db: str | Path | duckdb.DuckDBPyConnection, match_id: str, margin_
               margin_m: float = 25.0) -> Figure:
     """The ego's and the actor's paths during a match (plus ``margin_s`` either side) over the map's lanes and
     junctions, with both positions marked where each phase starts."""
-    con = db if isinstance(db, duckdb.DuckDBPyConnection) else connect(db, read_only=True)
+    con = db if isinstance(db, duckdb.DuckDBPyConnection) else open_current(db)
     try:
         m, paths, phases, lanes, junctions = _match_geometry(con, match_id, margin_s)
     finally:

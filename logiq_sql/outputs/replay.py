@@ -29,7 +29,7 @@ from logiq_sql.core.sql import bind, query_text
 from logiq_sql.outputs.plots import ACTOR_COLOUR, EGO_COLOUR, PHASE_COLOURS
 from logiq_sql.spec.plan import ALL_KINDS_CSV, DEFAULT_MIN_CLOSING_SPEED_MPS
 from logiq_sql.spec.scenario import load_scenario
-from logiq_sql.storage.db import connect
+from logiq_sql.storage.db import open_current
 
 MARGIN_S = 1.0  # shown before and after the match
 OTHERS_RANGE_M = 60.0  # other road users within this distance of the ego are drawn (faint)
@@ -349,7 +349,7 @@ def scene(db: str | Path | duckdb.DuckDBPyConnection, match_id: str) -> dict:
 def _open(db: str | Path) -> duckdb.DuckDBPyConnection:
     if not Path(db).is_file():
         raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
-    return connect(db, read_only=True)
+    return open_current(db)
 
 
 def pack(value: dict) -> str:

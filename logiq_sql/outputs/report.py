@@ -21,7 +21,7 @@ import polars as pl
 from logiq_sql.core.errors import InputError, ScenarioError, arg
 from logiq_sql.outputs import plots, replay
 from logiq_sql.spec.scenario import load_scenario
-from logiq_sql.storage.db import open_for_read
+from logiq_sql.storage.db import open_current
 
 MATCH_COLUMNS = ("match_id", "scenario", "drive_id", "ego_id", "actor_id", "start_s", "end_s", "duration_s",
                  "params_hash")
@@ -102,7 +102,7 @@ def _table(frame: pl.DataFrame, table_id: str | None = None, row_attr: str | Non
 def _load(db: str | Path) -> dict[str, pl.DataFrame]:
     if not Path(db).is_file():
         raise InputError(f"{arg('db', db)}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
-    with open_for_read(db) as con:  # one connection: the tables and the replays are of one published state
+    with open_current(db) as con:  # one connection: the tables and the replays are of one published state
         present = {r[0] for r in con.sql("select table_name from information_schema.tables").fetchall()}
         missing = [t for t in ("matches", "kpis", "coverage", "match_runs") if t not in present]
         if missing:

@@ -95,6 +95,19 @@ def open_for_read(path: str | Path) -> duckdb.DuckDBPyConnection:
     return con
 
 
+def open_current(path: str | Path) -> duckdb.DuckDBPyConnection:
+    """``open_for_read``, refusing with the fix a file written by an earlier logiq_sql that no run has opened for
+    writing since (``tables.require_current``): reports, replays, exports and explain read the columns added since,
+    which a read-only connection cannot add."""
+    con = open_for_read(path)
+    try:
+        tables.require_current(con, path)
+    except BaseException:
+        con.close()
+        raise
+    return con
+
+
 WORK_SUFFIX = ".writing"  # a run's own copy of the file, beside it: published over the file when the run completes
 
 

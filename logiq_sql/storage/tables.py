@@ -306,17 +306,26 @@ def backfill_best_lanes(con: duckdb.DuckDBPyConnection) -> None:
         where l.best_lane is null and l.drive_key = r.drive_key and l.row_key = r.row_key and l.lane_id = r.lane_id""")
 
 
-def require_current(con: duckdb.DuckDBPyConnection, path: object) -> None:
-    """Refuse, naming the fix, a file written by an earlier logiq_sql that no run has opened for writing since: a
-    read-only connection cannot add the input columns added since (create_all does, with their values)."""
+def outdated(con: duckdb.DuckDBPyConnection, path: object) -> str | None:
+    """What a file written by an earlier logiq_sql, that no run has opened for writing since, lacks, and the fix;
+    None for a current file. A read-only connection cannot add the input columns added since (create_all does,
+    with their values)."""
     have = set(con.execute("select table_name, column_name from duckdb_columns() where schema_name = 'main' "
                            "and database_name = current_database()").fetchall())
     tables_in_file = {name for name, _ in have}
     missing = [f"{t.name}.{c.name}" for t in (*schema.ALL_INPUT_TABLES, schema.STORED_TRACK_LANES)
                if t.name in tables_in_file for c in t.columns if (t.name, c.name) not in have]
-    if missing:
-        raise InputError(f"{path}: written by an earlier logiq_sql, it has no column {', '.join(missing)}. Fix: let "
-                         f"a run that writes the file add it (`logiq-sql match --db {path}`), then run this again.")
+    if not missing:
+        return None
+    return (f"{path}: written by an earlier logiq_sql, it has no column {', '.join(missing)}. Fix: let a run that "
+            f"writes the file add {'them' if len(missing) > 1 else 'it'} (`logiq-sql match --db {path}`), then run "
+            "this again.")
+
+
+def require_current(con: duckdb.DuckDBPyConnection, path: object) -> None:
+    """Refuse, naming the fix, a file written by an earlier logiq_sql that no run has opened for writing since."""
+    if problem := outdated(con, path):
+        raise InputError(problem)
 
 
 def insert(con: duckdb.DuckDBPyConnection, table: str, frame: pl.DataFrame) -> None:

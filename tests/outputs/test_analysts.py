@@ -13,8 +13,10 @@ from pathlib import Path
 import duckdb
 import pytest
 
-from logiq_sql import ingest, match
+from logiq_sql import InputError, ingest, match
 from logiq_sql.cli import main
+from logiq_sql.outputs.plots import birds_eye
+from logiq_sql.storage import db
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests/data"
@@ -91,6 +93,32 @@ def test_query_prints_a_table_and_cannot_write(matched_db, capsys):
         assert con.execute("select count(*) from matches").fetchone()[0] > 0
     assert main(["query", "--db", str(matched_db), "select nope from matches"]) == 2
     assert 'column "nope"' in capsys.readouterr().err.lower().replace("referenced column", "column")
+
+
+def test_a_file_an_earlier_logiq_sql_wrote_is_refused_with_the_fix_until_a_run_upgrades_it(matched_db, tmp_path,
+                                                                                           capsys):
+    # read-only, the report, replays, exports and plots cannot add the columns added since (a binder error, before)
+    old = tmp_path / "old.duckdb"
+    shutil.copyfile(matched_db, old)
+    with duckdb.connect(str(old)) as con:
+        con.execute("alter table track_lanes drop column best_lane")  # as an earlier logiq_sql wrote it
+        match_id = con.execute("select match_id from matches order by match_id limit 1").fetchone()[0]
+    fix = r"no column track_lanes\.best_lane\. Fix: .*`logiq-sql match --db .*old\.duckdb`"
+    for command in (["report", "--out", str(tmp_path / "r.html")],
+                    ["replay", match_id, "--out", str(tmp_path / "r.gif")],
+                    ["export", "xosc", match_id, "--out", str(tmp_path / "m.xosc")],
+                    ["query", "select best_lane from track_lanes"]):
+        assert main([*command, "--db", str(old)]) == 2, command
+        assert re.search(fix, capsys.readouterr().err), command
+    with pytest.raises(InputError, match=fix):
+        birds_eye(old, match_id)
+    # SQL that reads nothing added since still runs; a mistake of its own is given as DuckDB gives it
+    assert main(["query", "--db", str(old), "select count(*) as n from matches"]) == 0
+    assert main(["query", "--db", str(old), "select nope from matches"]) == 2
+    err = capsys.readouterr().err
+    assert 'column "nope"' in err.lower().replace("referenced column", "column") and re.search(fix, err)
+    db.connect(old).close()  # what a run that writes the file does first
+    assert main(["report", "--db", str(old), "--out", str(tmp_path / "r.html")]) == 0
 
 
 def _chromium():

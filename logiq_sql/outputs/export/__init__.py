@@ -20,10 +20,10 @@ OPENLABEL_SCHEMA = SCHEMAS / "openlabel_json_schema-v1.0.0.json"
 
 
 def open_db(path: str | Path) -> duckdb.DuckDBPyConnection:
-    """The DuckDB file, read-only; a clear error when it is not there."""
+    """The DuckDB file, read-only; a clear error when it is not there or was written by an earlier logiq_sql."""
     if not Path(path).is_file():
         raise InputError(f"--db {path}: no such file (write one with `logiq-sql ingest` and `logiq-sql match`).")
-    return db.connect(path, read_only=True)
+    return db.open_current(path)
 
 
 def xodr_file(map_id: str | None, source_path: str) -> Path | None:
