@@ -63,7 +63,7 @@ test: venv
 TIER ?= S
 bench: venv
 	$(BIN)/python -m benchmarks.tiers --tier $(TIER) $(BENCH_ARGS)
-	$(BIN)/python -m benchmarks.components --tier $(TIER)
+	$(BIN)/python -m benchmarks.components --tier $(TIER) --kept
 
 # after a deliberate change of meaning only (its own commit): the bundled-drive goldens and tier S's
 golden: venv
