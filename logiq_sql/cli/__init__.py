@@ -74,7 +74,8 @@ def cmd_match(args: argparse.Namespace) -> int:
     common = dict(scenarios=args.scenario or None, ego=args.ego, overrides=set_pairs(args.set),
                   drives=args.drive or None, relation_range=args.relation_range, progress=_say(args.quiet),
                   force=args.force, engine=args.engine, spark_master=args.spark_master, wait_s=args.wait,
-                  scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep)
+                  scenario_path=args.scenario_path, ego_kinds=args.ego_kinds, keep=args.keep,
+                  step_cache=args.step_cache)
     if args.dataset is not None:  # with --engine spark, Spark writes the results itself under --out
         result = match_dataset(args.dataset, args.out, args.db, spark_tables=args.spark_tables or args.dataset,
                                **common)
@@ -311,6 +312,11 @@ def add_match(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="rerun drives already matched with the same scenario version, parameters, ego and range "
                         "(skipped by default)")
+    p.add_argument("--step-cache", choices=["auto", "all", "off"], default=None,
+                   help="what the step cache beside the file (FILE.step_cache) keeps for the next runs: auto (the "
+                        "steps that cost more to compute than to keep), all, or off (nothing kept or read: no disk "
+                        "beside the file, every later run computes everything). Default: $LOGIQ_SQL_STEP_CACHE, "
+                        "else auto")
     add_quiet(p)
     add_match_engine(p)
     add_wait(p)

@@ -49,7 +49,8 @@ from logiq_sql.spec.plan import (
 from logiq_sql.spec.plan import phase_steps as phase_steps  # noqa: F401
 from logiq_sql.spec.plan import scenario_steps as scenario_steps  # noqa: F401
 from logiq_sql.spec.scenario import Scenario, ScenarioPath
-from logiq_sql.storage import db, step_cache
+from logiq_sql.storage import db
+from logiq_sql.storage import step_cache as cache_file
 from logiq_sql.storage.step_cache import StepCache
 from logiq_sql.storage.store import EXPORTED as EXPORTED  # noqa: F401
 from logiq_sql.storage.store import PERSISTED, ensure_kpi_columns, export, store_batch
@@ -108,7 +109,7 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
           spark_master: str | None = None, spark_tables: str | Path | None = None,
           batch_rows: int | None = None, scenario_path: ScenarioPath = None,
           ego_kinds: str | None = None, wait_s: float = 0.0, keep: bool = False,
-          results: str | Path | None = None) -> MatchResult:
+          results: str | Path | None = None, step_cache: str | None = None) -> MatchResult:
     """Match scenarios against the drives in ``db_path`` and store matches, KPIs and coverage there.
 
     Args:
@@ -143,6 +144,9 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         results: with ``engine="spark"``: Spark writes the outputs itself as Parquet partitioned by scenario and
             drive under this folder (logiq_sql/matching/spark_out.py), and ``db_path`` gets views over them; nothing of
             the results passes through the driver.
+        step_cache: what the step cache beside the file keeps for later runs (DuckDB engine; docs/operations.md,
+            "The step cache"): ``auto`` the steps that cost more to compute than to keep, ``all`` every step, ``off``
+            none, and none is read either. Default: $LOGIQ_SQL_STEP_CACHE, else ``auto``.
     """
     say = progress or (lambda _msg: None)
     chosen = resolve_scenarios(scenarios, overrides or {}, scenario_path)
@@ -159,10 +163,10 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
         # the step cache (DuckDB engine only; a named in-memory database of match_frames has nothing to keep it
         # for): force recomputes every step, and still keeps what it computed
-        mode = step_cache.mode()
+        mode = cache_file.mode(step_cache)
         cache = None
         if engine == "duckdb" and mode != "off" and not str(db_path).startswith(":memory:"):
-            step_cache.attach(con, db_path)  # <file>.step_cache, beside the file (created on first use)
+            cache_file.attach(con, db_path)  # <file>.step_cache, beside the file (created on first use)
             cache = StepCache(con, read=not force, keep_all=mode == "all")
         runner = open_engine(engine, con, spark_master, None if spark_tables is None else str(spark_tables), cache)
         cleanup.callback(runner.close)
@@ -219,7 +223,7 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         result = read_result(con, run_drives, [s.name for s in chosen])
         result.up_to_date = up_to_date
         if cache is not None:
-            kept = step_cache.size(con, storage=False)  # bytes count once published: `logiq-sql cache` says them
+            kept = cache_file.size(con, storage=False)  # bytes count once published: `logiq-sql cache` says them
             result.cache = f"{cache.summary()}; {kept['rows']:,} rows kept in {kept['tables']} table(s)"
             result.cache_steps = cache.steps
         if out is not None:

@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import duckdb
 import pytest
 
-from logiq_sql import ingest, match
+from logiq_sql import LogiqError, ingest, match
 from logiq_sql.cli import main
 from logiq_sql.core import sql
 from logiq_sql.core.sql import bind, tables_read
@@ -362,3 +362,18 @@ def test_the_kept_write_part_writes_every_row_the_cache_keeps(matched, tmp_path)
             t["rows"] for t in kept]
     assert 0 < seconds["relations write"] < seconds["kept write"]
     assert set(cpu) == {"kept write", "relations write"}
+
+
+def test_the_step_cache_option_of_a_run_overrides_the_environment(tmp_path, ingested, capsys):
+    # keep_every_step sets LOGIQ_SQL_STEP_CACHE=all: --step-cache off keeps nothing beside the file, and reads nothing
+    db = ingested(tmp_path / "x.duckdb", "commonroad", DRIVES[:1])
+    assert main(["match", "--db", str(db), "--scenario", "follower_vehicle", "--step-cache", "off", "--quiet"]) == 0
+    assert not step_cache.path_of(db).exists()
+    assert "step cache" not in capsys.readouterr().out
+    match(db, scenarios=["follower_vehicle"], force=True, step_cache="all")
+    with cache_of(db) as con:
+        assert con.execute("select count(*) from cache.step_cache").fetchone()[0] > 0
+    with pytest.raises(SystemExit):
+        main(["match", "--db", str(db), "--step-cache", "some"])
+    with pytest.raises(LogiqError, match=r"step_cache='some': choose one of auto, all, off"):
+        match(db, scenarios=["follower_vehicle"], step_cache="some")
