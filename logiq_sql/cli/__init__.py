@@ -312,7 +312,7 @@ def add_match(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="rerun drives already matched with the same scenario version, parameters, ego and range "
                         "(skipped by default)")
-    p.add_argument("--step-cache", choices=["auto", "all", "off"], default=None,
+    p.add_argument("--step-cache", metavar="auto|all|off", default=None,  # checked by step_cache.mode
                    help="what the step cache beside the file (FILE.step_cache) keeps for the next runs: auto (the "
                         "steps that cost more to compute than to keep), all, or off (nothing kept or read: no disk "
                         "beside the file, every later run computes everything). Default: $LOGIQ_SQL_STEP_CACHE, "

@@ -153,6 +153,7 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
     ego_values = parse_ego(ego, ego_kinds)
     ego = ego_key(ego, ego_kinds)
     range_m = relation_range_m(relation_range)
+    mode = cache_file.mode(step_cache)  # checked before the file is copied for the run
     if batch_rows is None:
         batch_rows = SPARK_RESULTS_BATCH_ROWS if results is not None else MATCH_BATCH_ROWS
     if results is not None and engine != "spark":
@@ -163,7 +164,6 @@ def match(db_path: str | Path, *, scenarios: list[str] | None = None, ego: str =
         check_engine(engine, [rel for s in chosen for rel in scenario_queries(s)])
         # the step cache (DuckDB engine only; a named in-memory database of match_frames has nothing to keep it
         # for): force recomputes every step, and still keeps what it computed
-        mode = cache_file.mode(step_cache)
         cache = None
         if engine == "duckdb" and mode != "off" and not str(db_path).startswith(":memory:"):
             cache_file.attach(con, db_path)  # <file>.step_cache, beside the file (created on first use)

@@ -75,7 +75,7 @@ def mode(chosen: str | None = None) -> str:
     """``chosen`` (match's ``step_cache``, ``--step-cache``), else $LOGIQ_SQL_STEP_CACHE, else auto; checked."""
     value = chosen if chosen is not None else os.environ.get(MODE_ENV, "auto")
     if value not in MODES:
-        where = f"step_cache={value!r}" if chosen is not None else f"${MODE_ENV}={value}"
+        where = f"step cache mode '{value}'" if chosen is not None else f"${MODE_ENV}={value}"
         raise LogiqError(f"{where}: choose one of {', '.join(MODES)} (auto keeps the steps that cost more to "
                          "compute than to keep, all keeps every step, off uses no cache).")
     return value

@@ -373,7 +373,7 @@ def test_the_step_cache_option_of_a_run_overrides_the_environment(tmp_path, inge
     match(db, scenarios=["follower_vehicle"], force=True, step_cache="all")
     with cache_of(db) as con:
         assert con.execute("select count(*) from cache.step_cache").fetchone()[0] > 0
-    with pytest.raises(SystemExit):
-        main(["match", "--db", str(db), "--step-cache", "some"])
-    with pytest.raises(LogiqError, match=r"step_cache='some': choose one of auto, all, off"):
+    assert main(["match", "--db", str(db), "--step-cache", "some"]) == 2
+    assert "step cache mode 'some': choose one of auto, all, off" in capsys.readouterr().err
+    with pytest.raises(LogiqError, match=r"step cache mode 'some': choose one of auto, all, off"):
         match(db, scenarios=["follower_vehicle"], step_cache="some")
